@@ -1,0 +1,333 @@
+"""The channel protocol: every message of the lockstep tick, one codec, one framing.
+
+This module is the whole wire protocol between the channel (the paper's GZUAVCHANNEL) and its peers:
+the physics process that owns the clock, autopilots, type-0 subscribers (mission processes), type-1
+subscribers (network simulators, recorders) and child channels in a tree.
+
+Framing: every frame is a 4-byte big-endian unsigned length followed by that many bytes of msgpack.
+The msgpack body is one message, encoded as an array whose first element is the message's tag (see
+``msgspec`` tagged unions with ``array_like=True``). The codec is pure: :func:`encode` turns a message
+into a frame, :class:`FrameDecoder` turns a byte stream back into messages and raises
+:class:`ProtocolError` on anything malformed. No sockets here.
+
+Time is an integer count of nanoseconds of simulated time (``t_ns``) everywhere.
+
+Handshake (one round trip and a half, on every new connection)::
+
+    channel -> peer   CHALLENGE(version, nonce)
+    peer -> channel   HELLO(version, kind, name, vehicles, auth)        # the paper's *subscription*
+    channel -> peer   WELCOME(peer_id, epoch_ns, tick_ns)    or   ERROR(...) and close
+
+``auth`` is HMAC-SHA256(secret, nonce || name) when the channel requires a shared secret, else empty.
+
+One tick (see DESIGN.md, "The tick")::
+
+    physics  -> channel   BEGIN-TICK-AC(t, vehicle, ...)  one per vehicle     (BeginTickAC)
+    channel  -> autopilot BEGIN-TICK-AC                                        (forwarded)
+    channel  -> type 0    BEGIN-TICK-0(t)                  phase 0 starts      (BeginTick0)
+    type 0   -> channel   ENQUEUE(...)*  then  END-TICK-0(t)                   (Enqueue, EndTick0)
+    autopilot-> channel   END-TICK-AC(t, vehicle, motors)                      (EndTickAC)
+    channel  -> type 1    BEGIN-TICK-1(t, positions, packets)  phase 1 starts  (BeginTick1)
+    type 1   -> channel   DELIVER(...)*  then  END-TICK-1(t)                   (Deliver, EndTick1)
+    channel  -> type 0    DELIVER (routed to the addressed vehicle's missions)
+    channel  -> physics   END-TICK-AC for every vehicle                        (forwarded)
+
+A child channel (tree of channels, paper section III-C) connects to its parent with kind CHILD and is
+treated by the parent as an autopilot host for the vehicles it announces *and* as a type-0 and type-1
+subscriber: it receives BEGIN-TICK-AC, BEGIN-TICK-0 and BEGIN-TICK-1 and answers END-TICK-AC,
+END-TICK-0 and END-TICK-1 for its whole subtree, and relays ENQUEUE up and DELIVER in both directions.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import hmac
+import struct
+from typing import Annotated, Final
+
+import msgspec
+
+PROTOCOL_VERSION: Final = 1
+"""Bumped on every incompatible change of a message below."""
+
+MAX_FRAME_BYTES: Final = 16 * 1024 * 1024
+"""Frames larger than this are refused as malformed (a garbage length prefix must not allocate GBs)."""
+
+BROADCAST: Final = -1
+"""Destination vehicle of a broadcast packet."""
+
+_LEN = struct.Struct(">I")
+
+
+class ProtocolError(Exception):
+    """A frame or message that does not follow this protocol."""
+
+
+class PeerKind(enum.IntEnum):
+    """What a peer is, declared in its HELLO (the paper's subscription type, and more)."""
+
+    TYPE0 = 0
+    """Type-0 subscriber: runs *inside* the simulated world, in phase 0 (mission processes)."""
+    TYPE1 = 1
+    """Type-1 subscriber: simulates part of the world, in phase 1 (network simulator, recorder)."""
+    PHYSICS = 2
+    """The clock owner: emits BEGIN-TICK-AC and waits for END-TICK-AC (the paper's Gazebo plugin)."""
+    AUTOPILOT = 3
+    """Holds the flight stacks of ``vehicles``: answers BEGIN-TICK-AC with END-TICK-AC."""
+    CHILD = 4
+    """A child channel of a tree; holds ``vehicles`` and relays both phases for its subtree."""
+
+
+class ErrorCode(enum.IntEnum):
+    """Why an ERROR frame was sent."""
+
+    BAD_VERSION = 1
+    BAD_AUTH = 2
+    MALFORMED = 3
+    UNEXPECTED = 4
+    STALLED = 5
+    PEER_LOST = 6
+    ROUTING = 7
+    SHUTDOWN = 8
+    INTERNAL = 9
+
+
+class _Msg(msgspec.Struct, array_like=True, frozen=True, tag_field="tag"):
+    """Base of every message; the tag is the first element of the encoded array."""
+
+
+Vec3 = tuple[float, float, float]
+
+
+# --- handshake -------------------------------------------------------------------------------
+
+
+class Challenge(_Msg, tag="CHALLENGE"):
+    """Channel -> peer, first frame on a connection: protocol version and a nonce for the secret."""
+
+    version: int
+    nonce: bytes
+
+
+class Hello(_Msg, tag="HELLO"):
+    """Peer -> channel: the subscription (paper: "subscription, specifying its type").
+
+    ``vehicle`` is the vehicle a type-0 subscriber belongs to (-1 for none); ``vehicles`` are the
+    vehicles an AUTOPILOT or CHILD holds, or that PHYSICS simulates.
+    """
+
+    version: int
+    kind: PeerKind
+    name: str
+    vehicle: int = -1
+    vehicles: tuple[int, ...] = ()
+    auth: bytes = b""
+
+
+class Welcome(_Msg, tag="WELCOME"):
+    """Channel -> peer: subscription accepted. ``epoch_ns`` is the Unix time of sim time zero."""
+
+    peer_id: int
+    epoch_ns: int
+    phase_period_ns: int
+
+
+class Announce(_Msg, tag="ANNOUNCE"):
+    """CHILD/AUTOPILOT -> channel: the set of vehicles it holds has changed (a late autopilot joined)."""
+
+    vehicles: tuple[int, ...]
+    mission_vehicles: tuple[int, ...] = ()
+
+
+# --- the tick ----------------------------------------------------------------------------------
+
+
+class BeginTickAC(_Msg, tag="BTA"):
+    """BEGIN-TICK-AC: physics -> channel -> autopilot, one per vehicle and tick.
+
+    ``count`` is how many BEGIN-TICK-AC the *recipient* gets for this tick (the channel rewrites it
+    when it splits a tick among autopilots and children). ``position_ned_m`` is the vehicle's true
+    position in the world NED frame, which the channel hands to type-1 subscribers in BEGIN-TICK-1.
+    ``frame`` is the vehicle's sensor frame, opaque to the channel (codec in ``harness.fdm.frame``).
+    """
+
+    t_ns: int
+    tick: int
+    vehicle: int
+    count: int
+    position_ned_m: Vec3
+    frame: bytes = b""
+
+
+class EndTickAC(_Msg, tag="ETA"):
+    """END-TICK-AC: autopilot -> channel -> physics: the motor commands for the next interval.
+
+    ``motors`` are normalised commands in [0, 1] in PX4 quad-X motor order; physics validates them.
+    """
+
+    t_ns: int
+    vehicle: int
+    motors: tuple[float, ...]
+
+
+class BeginTick0(_Msg, tag="BT0"):
+    """BEGIN-TICK-0: channel -> type-0 subscribers: phase 0 of tick ``tick`` at sim time ``t_ns``."""
+
+    t_ns: int
+    tick: int
+
+
+class EndTick0(_Msg, tag="ET0"):
+    """END-TICK-0: type-0 subscriber -> channel: idle until the next phase 0."""
+
+    t_ns: int
+
+
+class Packet(msgspec.Struct, array_like=True, frozen=True):
+    """A network packet as handed to the network simulator (body of ENQUEUE and BEGIN-TICK-1)."""
+
+    t_ns: int
+    src: int
+    dst: int
+    port: int
+    seq: int
+    payload: bytes
+
+
+class VehiclePosition(msgspec.Struct, array_like=True, frozen=True):
+    vehicle: int
+    ned_m: Vec3
+
+
+class Enqueue(_Msg, tag="ENQ"):
+    """ENQUEUE-NS3: type-0 -> channel, in phase 0: a packet for the network; only queued."""
+
+    packet: Packet
+
+
+class BeginTick1(_Msg, tag="BT1"):
+    """BEGIN-TICK-1: channel -> type-1: simulate [t, t + period) with these positions and packets."""
+
+    t_ns: int
+    tick: int
+    period_ns: int
+    positions: tuple[VehiclePosition, ...]
+    packets: tuple[Packet, ...]
+
+
+class Deliver(_Msg, tag="DLV"):
+    """DELIVER: type-1 -> channel -> type-0 of vehicle ``packet.dst``: a packet received at ``at_ns``."""
+
+    at_ns: int
+    packet: Packet
+    rssi_dbm: float = 0.0
+
+
+class EndTick1(_Msg, tag="ET1"):
+    """END-TICK-1: type-1 -> channel: the interval is simulated, every DELIVER of it was sent."""
+
+    t_ns: int
+
+
+# --- control -----------------------------------------------------------------------------------
+
+
+class Bye(_Msg, tag="BYE"):
+    """Either direction: an orderly leave. A mission reports its exit code here."""
+
+    reason: str = ""
+    exit_code: int = 0
+
+
+class Error(_Msg, tag="ERR"):
+    """Either direction: something went wrong. ``fatal`` errors end the run."""
+
+    code: ErrorCode
+    message: str
+    fatal: bool = False
+
+
+Message = Annotated[
+    Challenge
+    | Hello
+    | Welcome
+    | Announce
+    | BeginTickAC
+    | EndTickAC
+    | BeginTick0
+    | EndTick0
+    | Enqueue
+    | BeginTick1
+    | Deliver
+    | EndTick1
+    | Bye
+    | Error,
+    "any channel message",
+]
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder: msgspec.msgpack.Decoder[Message] = msgspec.msgpack.Decoder(Message)  # type: ignore[arg-type]
+
+
+def encode(msg: Message) -> bytes:
+    """One message as one frame: length prefix plus msgpack body."""
+    body = _encoder.encode(msg)
+    return _LEN.pack(len(body)) + body
+
+
+def encode_many(msgs: list[Message]) -> bytes:
+    """Several frames back to back (one socket write for a burst)."""
+    return b"".join(encode(m) for m in msgs)
+
+
+def decode_body(body: bytes | memoryview) -> Message:
+    """Decode one frame body; :class:`ProtocolError` if it is not a valid message."""
+    try:
+        return _decoder.decode(body)
+    except (msgspec.DecodeError, msgspec.ValidationError, ValueError, TypeError) as exc:
+        raise ProtocolError(f"malformed message: {exc}") from None
+
+
+class FrameDecoder:
+    """Incremental decoder: feed bytes as they arrive, get whole messages out."""
+
+    __slots__ = ("_buf", "max_frame")
+
+    def __init__(self, max_frame: int = MAX_FRAME_BYTES) -> None:
+        self._buf = bytearray()
+        self.max_frame = max_frame
+
+    def feed(self, data: bytes) -> list[Message]:
+        """Append ``data`` and return every message now complete (possibly none)."""
+        buf = self._buf
+        buf += data
+        out: list[Message] = []
+        pos = 0
+        n = len(buf)
+        while n - pos >= 4:
+            (size,) = _LEN.unpack_from(buf, pos)
+            if size > self.max_frame:
+                raise ProtocolError(f"frame of {size} bytes exceeds the limit of {self.max_frame}")
+            end = pos + 4 + size
+            if end > n:
+                break
+            out.append(decode_body(memoryview(buf)[pos + 4 : end]))
+            pos = end
+        if pos:
+            del buf[:pos]
+        return out
+
+    @property
+    def pending(self) -> int:
+        """Bytes received but not yet part of a whole frame."""
+        return len(self._buf)
+
+
+def auth_token(secret: bytes, nonce: bytes, name: str) -> bytes:
+    """The HELLO ``auth`` field for a channel that requires ``secret``."""
+    return hmac.new(secret, nonce + name.encode(), hashlib.sha256).digest()
+
+
+def check_auth(secret: bytes, nonce: bytes, name: str, auth: bytes) -> bool:
+    return hmac.compare_digest(auth_token(secret, nonce, name), auth)
