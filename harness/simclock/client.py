@@ -15,6 +15,7 @@ one thread at a time.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import threading
@@ -137,18 +138,14 @@ class ChannelClient:
                 self.sock.sendall(p.encode(p.Bye(reason, exit_code)))
         except OSError:
             pass
-        try:
+        with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
         self.sock.close()
 
     def __enter__(self) -> ChannelClient:
         return self
 
-    def __exit__(
-        self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None
-    ) -> None:
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
         self.close()
 
 

@@ -103,14 +103,14 @@ Vec3 = tuple[float, float, float]
 # --- handshake -------------------------------------------------------------------------------
 
 
-class Challenge(_Msg, tag="CHALLENGE"):
+class Challenge(_Msg, tag="CHALLENGE", frozen=True):
     """Channel -> peer, first frame on a connection: protocol version and a nonce for the secret."""
 
     version: int
     nonce: bytes
 
 
-class Hello(_Msg, tag="HELLO"):
+class Hello(_Msg, tag="HELLO", frozen=True):
     """Peer -> channel: the subscription (paper: "subscription, specifying its type").
 
     ``vehicle`` is the vehicle a type-0 subscriber belongs to (-1 for none); ``vehicles`` are the
@@ -125,7 +125,7 @@ class Hello(_Msg, tag="HELLO"):
     auth: bytes = b""
 
 
-class Welcome(_Msg, tag="WELCOME"):
+class Welcome(_Msg, tag="WELCOME", frozen=True):
     """Channel -> peer: subscription accepted. ``epoch_ns`` is the Unix time of sim time zero."""
 
     peer_id: int
@@ -133,7 +133,7 @@ class Welcome(_Msg, tag="WELCOME"):
     phase_period_ns: int
 
 
-class Announce(_Msg, tag="ANNOUNCE"):
+class Announce(_Msg, tag="ANNOUNCE", frozen=True):
     """CHILD/AUTOPILOT -> channel: the set of vehicles it holds has changed (a late autopilot joined)."""
 
     vehicles: tuple[int, ...]
@@ -143,7 +143,7 @@ class Announce(_Msg, tag="ANNOUNCE"):
 # --- the tick ----------------------------------------------------------------------------------
 
 
-class BeginTickAC(_Msg, tag="BTA"):
+class BeginTickAC(_Msg, tag="BTA", frozen=True):
     """BEGIN-TICK-AC: physics -> channel -> autopilot, one per vehicle and tick.
 
     ``count`` is how many BEGIN-TICK-AC the *recipient* gets for this tick (the channel rewrites it
@@ -160,7 +160,7 @@ class BeginTickAC(_Msg, tag="BTA"):
     frame: bytes = b""
 
 
-class EndTickAC(_Msg, tag="ETA"):
+class EndTickAC(_Msg, tag="ETA", frozen=True):
     """END-TICK-AC: autopilot -> channel -> physics: the motor commands for the next interval.
 
     ``motors`` are normalised commands in [0, 1] in PX4 quad-X motor order; physics validates them.
@@ -171,14 +171,14 @@ class EndTickAC(_Msg, tag="ETA"):
     motors: tuple[float, ...]
 
 
-class BeginTick0(_Msg, tag="BT0"):
+class BeginTick0(_Msg, tag="BT0", frozen=True):
     """BEGIN-TICK-0: channel -> type-0 subscribers: phase 0 of tick ``tick`` at sim time ``t_ns``."""
 
     t_ns: int
     tick: int
 
 
-class EndTick0(_Msg, tag="ET0"):
+class EndTick0(_Msg, tag="ET0", frozen=True):
     """END-TICK-0: type-0 subscriber -> channel: idle until the next phase 0."""
 
     t_ns: int
@@ -200,13 +200,13 @@ class VehiclePosition(msgspec.Struct, array_like=True, frozen=True):
     ned_m: Vec3
 
 
-class Enqueue(_Msg, tag="ENQ"):
+class Enqueue(_Msg, tag="ENQ", frozen=True):
     """ENQUEUE-NS3: type-0 -> channel, in phase 0: a packet for the network; only queued."""
 
     packet: Packet
 
 
-class BeginTick1(_Msg, tag="BT1"):
+class BeginTick1(_Msg, tag="BT1", frozen=True):
     """BEGIN-TICK-1: channel -> type-1: simulate [t, t + period) with these positions and packets."""
 
     t_ns: int
@@ -216,7 +216,7 @@ class BeginTick1(_Msg, tag="BT1"):
     packets: tuple[Packet, ...]
 
 
-class Deliver(_Msg, tag="DLV"):
+class Deliver(_Msg, tag="DLV", frozen=True):
     """DELIVER: type-1 -> channel -> type-0 of vehicle ``packet.dst``: a packet received at ``at_ns``."""
 
     at_ns: int
@@ -224,7 +224,7 @@ class Deliver(_Msg, tag="DLV"):
     rssi_dbm: float = 0.0
 
 
-class EndTick1(_Msg, tag="ET1"):
+class EndTick1(_Msg, tag="ET1", frozen=True):
     """END-TICK-1: type-1 -> channel: the interval is simulated, every DELIVER of it was sent."""
 
     t_ns: int
@@ -233,14 +233,14 @@ class EndTick1(_Msg, tag="ET1"):
 # --- control -----------------------------------------------------------------------------------
 
 
-class Bye(_Msg, tag="BYE"):
+class Bye(_Msg, tag="BYE", frozen=True):
     """Either direction: an orderly leave. A mission reports its exit code here."""
 
     reason: str = ""
     exit_code: int = 0
 
 
-class Error(_Msg, tag="ERR"):
+class Error(_Msg, tag="ERR", frozen=True):
     """Either direction: something went wrong. ``fatal`` errors end the run."""
 
     code: ErrorCode
@@ -267,7 +267,7 @@ Message = Annotated[
 ]
 
 _encoder = msgspec.msgpack.Encoder()
-_decoder: msgspec.msgpack.Decoder[Message] = msgspec.msgpack.Decoder(Message)  # type: ignore[arg-type]
+_decoder: msgspec.msgpack.Decoder[Message] = msgspec.msgpack.Decoder(Message)
 
 
 def encode(msg: Message) -> bytes:
