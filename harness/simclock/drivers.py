@@ -80,9 +80,7 @@ def run_fake_physics(
                 if lag > 0:
                     real_sleep(lag / NS_PER_S)
             sent = real_monotonic_ns()
-            client.send_many(
-                [p.BeginTickAC(t_ns, k, v, vehicles, fake_position(v, k), b"") for v in range(vehicles)]
-            )
+            client.send_many([p.BeginTickAC(t_ns, k, v, vehicles, fake_position(v, k), b"") for v in range(vehicles)])
             got: dict[int, p.EndTickAC] = {}
             while len(got) < vehicles:
                 for msg in client.recv():

@@ -1,0 +1,171 @@
+"""``harness mission SCRIPT``: run an unmodified script as a type-0 subscriber on the sim clock.
+
+The process connects to the channel, patches time (``patch.install``), starts the *clock thread* that
+answers BEGIN-TICK-0 with END-TICK-0 once the script is idle, and runs SCRIPT as ``__main__`` in the
+main thread. When the script ends — returns, raises, calls ``sys.exit`` — the runner reports the exit
+code to the channel (BYE) and ends the process itself, even if a library left a non-daemon thread
+behind (``mavsdk-grpc`` does). When the run ends first, the script is stopped with exit code
+:data:`EXIT_RUN_ENDED`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import runpy
+import sys
+import threading
+import traceback
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from harness.errors import ScenarioError
+from harness.simclock import patch
+from harness.simclock import protocol as p
+from harness.simclock.client import ChannelClient, ChannelClosed
+from harness.simclock.clock import real_sleep
+from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
+
+log = logging.getLogger(__name__)
+
+EXIT_RUN_ENDED = 124
+"""Exit code of a mission whose simulation ended (or dropped it) before the script finished."""
+
+
+@dataclass(frozen=True)
+class MissionSpec:
+    script: Path
+    args: tuple[str, ...]
+    channel: str
+    vehicle: int
+    name: str
+
+
+class _ClockThread(threading.Thread):
+    def __init__(self, client: ChannelClient, rt: SimRuntime) -> None:
+        super().__init__(name=f"{INFRA_THREAD_PREFIX}clock", daemon=True)
+        self.client = client
+        self.rt = rt
+        self.end_reason: str | None = None
+        self.seq = 0
+
+    def run(self) -> None:
+        try:
+            while True:
+                for msg in self.client.recv():
+                    if isinstance(msg, p.BeginTick0):
+                        self.rt.run_phase(msg.t_ns)
+                        out: list[p.Message] = []
+                        for o in self.rt.take_outbox():
+                            pk = p.Packet(msg.t_ns, self.rt.vehicle, o.dst, o.port, self.seq, o.payload)
+                            self.seq += 1
+                            out.append(p.Enqueue(pk))
+                        out.append(p.EndTick0(msg.t_ns))
+                        self.client.send_many(out)
+                    elif isinstance(msg, p.Deliver):
+                        pk = msg.packet
+                        self.rt.deliver(Delivery(msg.at_ns, pk.src, pk.dst, pk.port, pk.payload, msg.rssi_dbm))
+                    elif isinstance(msg, p.Bye):
+                        self._end(f"the simulation ended ({msg.reason or 'no reason given'})")
+                        return
+                    elif isinstance(msg, p.Error):
+                        self._end(f"the channel dropped this mission: {msg.message}")
+                        return
+        except ChannelClosed as exc:
+            self._end(str(exc))
+        except Exception as exc:  # a bug in the clock must not leave the script hanging
+            log.exception("clock thread failed")
+            self._end(f"internal error in the sim clock: {exc!r}")
+
+    def _end(self, reason: str) -> None:
+        self.end_reason = reason
+        self.rt.close()
+        sys.stderr.write(f"harness mission: {reason}; stopping the script\n")
+        sys.stderr.flush()
+        # Give the script a moment to finish on its own (its waits were all released), then end it.
+        real_sleep(2.0)
+        _exit(EXIT_RUN_ENDED)
+
+
+def _exit(code: int) -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:
+            pass
+    os._exit(code)
+
+
+def run_script(script: Path, args: Sequence[str]) -> int:
+    """Run ``script`` as ``__main__``; return its exit code (tracebacks go to stderr)."""
+    sys.argv = [str(script), *args]
+    sys.path.insert(0, str(script.parent.resolve()))
+    try:
+        runpy.run_path(str(script), run_name="__main__")
+    except SystemExit as exc:
+        code = exc.code
+        if code is None:
+            return 0
+        if isinstance(code, int):
+            return code
+        sys.stderr.write(f"{code}\n")
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    except BaseException:
+        traceback.print_exc()
+        return 1
+    return 0
+
+
+def _script_threads() -> list[threading.Thread]:
+    """Non-daemon threads the script itself started (not ones of installed libraries)."""
+    out = []
+    lib_roots = tuple({sys.prefix, sys.base_prefix, os.path.dirname(os.__file__)})
+    for t in threading.enumerate():
+        if t is threading.main_thread() or t.daemon or t.name.startswith(INFRA_THREAD_PREFIX):
+            continue
+        target = getattr(t, "_target", None)
+        code = getattr(target, "__code__", None) or getattr(type(t).run, "__code__", None)
+        filename = getattr(code, "co_filename", "")
+        if filename and not filename.startswith(lib_roots):
+            out.append(t)
+    return out
+
+
+def run_mission(spec: MissionSpec) -> int:
+    """Connect, patch, run the script on the sim clock, report, and return the exit code."""
+    if not spec.script.is_file():
+        raise ScenarioError(f"mission script {spec.script} does not exist")
+    client = ChannelClient.connect(spec.channel, p.PeerKind.TYPE0, spec.name, vehicle=spec.vehicle)
+    rt = SimRuntime(client.welcome.epoch_ns, client.welcome.phase_period_ns, spec.vehicle)
+    os.environ.setdefault("HARNESS_VEHICLE", str(spec.vehicle))
+    os.environ.setdefault("HARNESS_SYSID", str(spec.vehicle + 1))
+    patch.install(rt)
+    clock = _ClockThread(client, rt)
+    clock.start()
+    rt.wait_first_phase()
+    code = run_script(spec.script, spec.args)
+    if code == 0:
+        for t in _script_threads():  # a normal end waits for the script's own threads, as Python does
+            t.join()
+    rt.thread_done()
+    try:
+        client.close(f"script exited with {code}", code)
+    except Exception:
+        pass
+    return code
+
+
+def main_mission(spec: MissionSpec) -> None:
+    """Entry point of the ``harness mission`` process: never returns."""
+    try:
+        code = run_mission(spec)
+    except ScenarioError as exc:
+        sys.stderr.write(f"harness mission: {exc}\n")
+        code = 2
+    except Exception as exc:
+        sys.stderr.write(f"harness mission: {exc}\n")
+        code = 1
+    _exit(code)

@@ -1,0 +1,346 @@
+"""Sim time inside a mission process: sim-time waits, the phase-0 gate and idle detection.
+
+A mission process runs only during phase 0 of the ticks. The *clock thread* (see ``mission.py``) calls
+:meth:`SimRuntime.run_phase` on every BEGIN-TICK-0: it advances sim time, wakes every wait that is
+due, opens the *gate*, waits until the script is idle, closes the gate and returns (then END-TICK-0
+goes out). The script is idle when every one of its threads is
+
+- in a sim-time wait (patched ``time.sleep``, ``Condition.wait`` and everything built on it:
+  ``Event.wait``, ``Queue.get``, ``Future.result``…), or
+- an event loop with nothing ready, blocked in its selector (``SimSelector``), or
+- parked in a known idle place of the standard library (a thread-pool worker waiting for work,
+  ``Thread.join``).
+
+A thread is woken only while the gate is open, and whoever wakes it marks it busy first, under the
+runtime's lock: the decision "all idle" and every wake-up are serialised, so no script code ever runs
+outside phase 0, whatever arrives on the wall clock (sockets, MAVSDK's C++ threads) in between.
+
+Internal waits here use raw ``_thread`` locks, never ``threading.Condition``, because that is patched.
+"""
+
+from __future__ import annotations
+
+import _thread
+import collections
+import logging
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from types import FrameType
+
+from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+
+log = logging.getLogger(__name__)
+
+_LockType = type(_thread.allocate_lock())
+
+INFRA_THREAD_PREFIX = "harness-"
+"""Threads whose name starts with this belong to the harness, not to the script."""
+
+_IDLE_FRAMES: set[tuple[str, str]] = {
+    ("thread.py", "_worker"),  # concurrent.futures worker waiting on its work queue
+    ("threading.py", "_wait_for_tstate_lock"),  # Thread.join
+}
+
+
+@dataclass(eq=False)
+class Waiter:
+    """One blocked thread: released by a notify, a due deadline, or a loop wake-up."""
+
+    ident: int
+    lock: _thread.LockType
+    deadline_ns: int | None = None
+    wake: Callable[[], None] | None = None
+    """For event loops: how to wake it (write to its self-pipe) instead of releasing ``lock``."""
+    released: bool = False
+    timed_out: bool = False
+
+
+@dataclass
+class Delivery:
+    at_ns: int
+    src: int
+    dst: int
+    port: int
+    payload: bytes
+    rssi_dbm: float
+
+
+@dataclass
+class _Outgoing:
+    dst: int
+    port: int
+    payload: bytes
+
+
+@dataclass
+class PhaseStats:
+    phases: int = 0
+    last_phase_wall_ns: int = 0
+    busy_wall_ns: int = 0
+    waits_released: int = 0
+    outbox: list[_Outgoing] = field(default_factory=list)
+
+
+class SimRuntime:
+    """The sim clock of one mission process. All times are integer nanoseconds."""
+
+    def __init__(self, epoch_ns: int, phase_period_ns: int, vehicle: int = -1) -> None:
+        self.epoch_ns = epoch_ns
+        self.phase_period_ns = phase_period_ns
+        self.vehicle = vehicle
+        self._now_ns = 0
+        self._started = False
+        self._mu = _thread.allocate_lock()
+        self._signal = _thread.allocate_lock()
+        self._signal.acquire()
+        self._gate_open = False
+        self._idle: dict[int, Waiter] = {}
+        self._timed: list[Waiter] = []
+        self._gate_waiters: list[Waiter] = []
+        self._by_lock: dict[int, Waiter] = {}
+        self._done_threads: set[int] = set()
+        self.stats = PhaseStats()
+        self.inbox: collections.deque[Delivery] = collections.deque()
+        self._inbox_waiters: list[Waiter] = []
+        self.closed = False
+
+    # -- reading the clock (any thread) --------------------------------------------------------
+
+    def now_ns(self) -> int:
+        return self._now_ns
+
+    def unix_ns(self) -> int:
+        return self.epoch_ns + self._now_ns
+
+    # -- the clock thread ----------------------------------------------------------------------
+
+    def run_phase(self, t_ns: int, idle_poll_s: float = 0.001) -> None:
+        """One phase 0 at sim time ``t_ns``: wake what is due, run until idle. Clock thread only."""
+        start = real_monotonic_ns()
+        with self._mu:
+            if t_ns < self._now_ns:
+                raise ValueError(f"sim time went backwards: {t_ns} < {self._now_ns}")
+            self._now_ns = t_ns
+            self._started = True
+            self._gate_open = True
+            due = [w for w in self._timed if w.deadline_ns is not None and w.deadline_ns <= t_ns]
+            for w in due:
+                w.timed_out = True
+                self._release_locked(w)
+            gated, self._gate_waiters = self._gate_waiters, []
+            for w in gated:
+                self._release_locked(w)
+            self.stats.waits_released += len(due) + len(gated)
+        while True:
+            with self._mu:
+                if self._all_idle_locked():
+                    self._gate_open = False
+                    break
+            self._signal.acquire(True, idle_poll_s)
+        self.stats.phases += 1
+        self.stats.last_phase_wall_ns = real_monotonic_ns() - start
+        self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
+
+    def take_outbox(self) -> list[_Outgoing]:
+        with self._mu:
+            out, self.stats.outbox = self.stats.outbox, []
+        return out
+
+    def deliver(self, d: Delivery) -> None:
+        """A packet from the network (clock thread, between phases): wake ``receive`` waiters."""
+        with self._mu:
+            self.inbox.append(d)
+            waiters, self._inbox_waiters = self._inbox_waiters, []
+            for w in waiters:
+                self._release_locked(w)
+
+    def close(self) -> None:
+        """The run is over: release every wait so nothing blocks forever."""
+        with self._mu:
+            self.closed = True
+            self._gate_open = True
+            for w in list(self._idle.values()) + self._gate_waiters + self._timed:
+                if not w.released:
+                    w.timed_out = True
+                    self._release_locked(w)
+
+    # -- script threads ------------------------------------------------------------------------
+
+    def sleep_ns(self, ns: int) -> None:
+        """Block the calling thread for ``ns`` of sim time (at least until a later phase 0)."""
+        if not self._tracked():
+            from harness.simclock.clock import real_sleep
+
+            real_sleep(max(0, ns) / NS_PER_S)
+            return
+        if ns <= 0:
+            return
+        w = self.new_waiter(deadline_ns=self._now_ns + ns)
+        w.lock.acquire()
+        self.finish_wait(w)
+
+    def new_waiter(
+        self,
+        deadline_ns: int | None = None,
+        lock: _thread.LockType | None = None,
+        wake: Callable[[], None] | None = None,
+        inbox: bool = False,
+    ) -> Waiter:
+        """Register the calling thread as idle until released; the caller then blocks on ``lock``.
+
+        With ``wake`` (event loops) the runtime calls ``wake()`` instead of releasing a lock.
+        """
+        if lock is None:
+            lock = _thread.allocate_lock()
+            lock.acquire()
+        w = Waiter(_thread.get_ident(), lock, deadline_ns, wake)
+        with self._mu:
+            if self.closed:
+                w.released = w.timed_out = True
+                self._unlock(w)
+                return w
+            self._idle[w.ident] = w
+            self._by_lock[id(lock)] = w
+            if deadline_ns is not None:
+                self._timed.append(w)
+            if inbox:
+                self._inbox_waiters.append(w)
+        self._poke()
+        return w
+
+    def release(self, lock: _thread.LockType) -> bool:
+        """Wake the thread blocked on ``lock`` (a Condition's waiter). False if not ours."""
+        with self._mu:
+            w = self._by_lock.get(id(lock))
+            if w is None or w.lock is not lock:
+                return False
+            if not w.released:
+                self._release_locked(w)
+            return True
+
+    def finish_wait(self, w: Waiter) -> None:
+        """Called by a woken thread: forget the waiter (it was marked busy by whoever woke it)."""
+        with self._mu:
+            self._forget_locked(w)
+
+    def loop_woken(self, w: Waiter) -> bool:
+        """An event loop's selector returned (I/O or wake-up): may the loop run now?
+
+        True: the gate is open, the loop is marked busy. False: outside phase 0; the loop must hold
+        its events and call :meth:`wait_gate` (it stays counted idle until the next phase 0).
+        """
+        with self._mu:
+            if w.released:
+                self._forget_locked(w)
+                return True
+            w.released = True
+            self._forget_locked(w)
+            return self._gate_open
+
+    def wait_gate(self) -> None:
+        """Block the calling thread (counted idle) until the next phase 0 opens the gate."""
+        w = self.new_waiter()
+        with self._mu:
+            if not w.released:
+                self._gate_waiters.append(w)
+        w.lock.acquire()
+        self.finish_wait(w)
+
+    def wait_first_phase(self) -> None:
+        """The main thread, before running the script: wait for the first phase 0."""
+        with self._mu:
+            if self._gate_open:
+                return
+        self.wait_gate()
+
+    def thread_done(self, ident: int | None = None) -> None:
+        """A script thread has finished (or the main script returned): never wait for it again."""
+        with self._mu:
+            self._done_threads.add(ident if ident is not None else _thread.get_ident())
+        self._poke()
+
+    def thread_resumed(self, ident: int | None = None) -> None:
+        with self._mu:
+            self._done_threads.discard(ident if ident is not None else _thread.get_ident())
+
+    def queue_packet(self, dst: int, port: int, payload: bytes) -> None:
+        """ENQUEUE a packet for the network; sent before this phase's END-TICK-0."""
+        with self._mu:
+            self.stats.outbox.append(_Outgoing(dst, port, bytes(payload)))
+
+    # -- internals -----------------------------------------------------------------------------
+
+    def _tracked(self) -> bool:
+        return self._started and not threading.current_thread().name.startswith(INFRA_THREAD_PREFIX)
+
+    def _poke(self) -> None:
+        if self._signal.locked():
+            try:
+                self._signal.release()
+            except RuntimeError:
+                pass
+
+    def _release_locked(self, w: Waiter) -> None:
+        """Mark ``w``'s thread busy and let it run. Only while the gate is open (or at close)."""
+        if w.released:
+            return
+        if not self._gate_open:
+            if w not in self._gate_waiters:
+                self._gate_waiters.append(w)
+            return
+        w.released = True
+        self._idle.pop(w.ident, None)
+        if w.wake is not None:
+            w.wake()
+        else:
+            self._unlock(w)
+
+    @staticmethod
+    def _unlock(w: Waiter) -> None:
+        try:
+            w.lock.release()
+        except RuntimeError:
+            pass
+
+    def _forget_locked(self, w: Waiter) -> None:
+        if self._idle.get(w.ident) is w:
+            del self._idle[w.ident]
+        self._by_lock.pop(id(w.lock), None)
+        if w in self._timed:
+            self._timed.remove(w)
+        if w in self._inbox_waiters:
+            self._inbox_waiters.remove(w)
+
+    def _all_idle_locked(self) -> bool:
+        frames: dict[int, FrameType] | None = None
+        for t in threading.enumerate():
+            ident = t.ident
+            if ident is None or t.name.startswith(INFRA_THREAD_PREFIX) or isinstance(t, threading._DummyThread):
+                continue
+            if ident in self._done_threads or ident in self._idle:
+                continue
+            if frames is None:
+                frames = sys._current_frames()
+            frame = frames.get(ident)
+            if frame is None:
+                continue  # the thread has ended
+            where = (frame.f_code.co_filename.rsplit("/", 1)[-1], frame.f_code.co_name)
+            if where in _IDLE_FRAMES:
+                continue
+            return False
+        return True
+
+
+_current: SimRuntime | None = None
+
+
+def current() -> SimRuntime | None:
+    """The sim runtime of this process, if it runs under ``harness mission``."""
+    return _current
+
+
+def set_current(rt: SimRuntime | None) -> None:
+    global _current
+    _current = rt
