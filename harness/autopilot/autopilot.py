@@ -1,0 +1,505 @@
+"""The autopilot: the thread-safe command API (``AutopilotApi``), arming checks and failsafes around the
+flight core.
+
+``step(frame)`` runs once per tick in lockstep and returns the four motor commands; every other method may
+be called from any thread (the MAVLink side calls them on the wall clock). One lock serialises them:
+a command changes the state between two steps and its effect shows in the next step.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+from harness.autopilot.api import (
+    AttitudeTarget,
+    CommandResult,
+    FlightMode,
+    GeoPoint,
+    LandedState,
+    MissionItem,
+    MissionKind,
+    MissionReached,
+    OffboardSetpoint,
+    Severity,
+    StatusText,
+    VehicleState,
+)
+from harness.autopilot.flight import FlightCore
+from harness.autopilot.mathutil import GeoRef
+from harness.autopilot.navigator import Orbit
+from harness.autopilot.params import Params
+from harness.autopilot.snapshot import build_state
+from harness.autopilot.validate import check_mission, finite
+from harness.fdm.frame import SensorFrame
+from harness.simclock.clock import Clock, WallClock
+
+_NO_RC = frozenset({FlightMode.MANUAL, FlightMode.STABILIZED})
+
+
+@dataclass(frozen=True)
+class AutopilotConfig:
+    vehicle: int = 0
+    use_ground_truth: bool = False
+    """Debugging only: take position, velocity and attitude from the frame's ground truth."""
+    origin: tuple[float, float, float] | None = None
+    """(lat_deg, lon_deg, alt_amsl_m) of the local frame; default: where the first good GPS fix was taken."""
+    params: Mapping[str, float] = field(default_factory=dict)
+    supervise_hz: float = 10.0
+    """Rate of the failsafe and auto-disarm checks (sim time)."""
+
+
+class Autopilot:
+    """One vehicle's autopilot. See ``harness.autopilot.api.AutopilotApi`` for the method contracts."""
+
+    def __init__(
+        self, config: AutopilotConfig | None = None, params: Params | None = None, wall_clock: Clock | None = None
+    ) -> None:
+        cfg = config or AutopilotConfig()
+        self.config = cfg
+        self.vehicle = cfg.vehicle
+        self.params = params if params is not None else Params(overrides=cfg.params)
+        self.wall = wall_clock if wall_clock is not None else WallClock()
+        origin = GeoRef(*cfg.origin) if cfg.origin is not None else None
+        self.core = FlightCore(self.params, cfg.use_ground_truth, origin)
+        self._lock = threading.Lock()
+        self._texts: deque[StatusText] = deque(maxlen=200)
+        self._reached: deque[MissionReached] = deque(maxlen=1000)
+        self._rally: tuple[MissionItem, ...] = ()
+        self.home: GeoPoint | None = None
+        self.home_ned: tuple[float, float, float] | None = None
+        self.failsafe = ""
+        self._offboard_wall_ns = -(10**18)
+        self._super_every = max(1, round(250.0 / cfg.supervise_hz))
+        self._tick = 0
+        self._armed_ns = 0
+        self._landed_since_ns: int | None = None
+        self._fence_breached = False
+        self._cache: VehicleState | None = None
+
+    # ------------------------------------------------------------------ lockstep
+    def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
+        with self._lock:
+            c = self.core
+            motors = c.step(frame)
+            self._tick += 1
+            if self._tick % self._super_every == 0:
+                self._supervise()
+            nav = c.nav
+            if nav.new_reached:
+                for s in nav.new_reached:
+                    self._reached.append(MissionReached(frame.t_ns, s))
+                    self._say(Severity.INFO, f"Mission item {s} reached")
+                nav.new_reached.clear()
+            if c.texts:
+                for sev, text in c.texts:
+                    self._say(Severity(sev), text)
+                c.texts.clear()
+            self._cache = None
+            return motors
+
+    def _say(self, severity: Severity, text: str) -> None:
+        self._texts.append(StatusText(max(self.core.t_ns, 0), severity, text))
+
+    def _set_mode(self, mode: FlightMode) -> None:
+        c = self.core
+        if c.mode != mode or mode in (FlightMode.TAKEOFF, FlightMode.HOLD, FlightMode.RTL):
+            c.mode = mode
+            c.nav.enter(mode, c.landed_state == LandedState.ON_GROUND)
+        self._cache = None
+
+    def _supervise(self) -> None:
+        c = self.core
+        p = self.params
+        t = c.t_ns
+        nav = c.nav
+        in_air = c.armed and c.landed_state != LandedState.ON_GROUND
+        # auto-disarm: after touchdown, and when armed but never taken off
+        if c.armed and c.landed_state == LandedState.ON_GROUND:
+            if self._landed_since_ns is None:
+                self._landed_since_ns = t
+            waited = (t - self._landed_since_ns) * 1e-9
+            limit = p["COM_DISARM_LAND"] if self._was_airborne else p["COM_DISARM_PRFLT"]
+            if limit > 0 and waited > limit and not nav.wants_climb and not self._offboard_climbing():
+                self._disarm("Disarmed after landing" if self._was_airborne else "Disarmed: no takeoff")
+                return
+        else:
+            self._landed_since_ns = None
+            if in_air:
+                self._was_airborne = True
+        if c.mode == FlightMode.MISSION and nav.mission_done:
+            nav.mission_done = False
+            self._say(Severity.INFO, "Mission finished")
+            if in_air and not nav.landing:
+                self._set_mode(FlightMode.HOLD)
+        if not in_air:
+            return
+        rem = c.battery.remaining
+        if rem < p["BAT_CRIT_THR"] and self.failsafe != "battery_critical":
+            self.failsafe = "battery_critical"
+            self._say(Severity.CRITICAL, f"Battery critical ({rem:.0%}): landing")
+            self._set_mode(FlightMode.LAND)
+        elif rem < p["BAT_LOW_THR"] and self.failsafe not in ("battery", "battery_critical"):
+            self.failsafe = "battery"
+            act = int(p["COM_LOW_BAT_ACT"])
+            self._say(Severity.WARNING, f"Battery low ({rem:.0%})" + (": returning" if act == 3 else ""))
+            if act == 3 and self.home_ned is not None:
+                self._set_mode(FlightMode.RTL)
+            elif act in (2, 3):
+                self._set_mode(FlightMode.LAND)
+        if c.mode == FlightMode.OFFBOARD:
+            lost_s = (self.wall.now_ns() - self._offboard_wall_ns) * 1e-9
+            if lost_s > p["COM_OF_LOSS_T"]:
+                self.failsafe = "offboard_loss"
+                act = int(p["COM_OBL_RC_ACT"])
+                target = {3: FlightMode.RTL, 4: FlightMode.LAND}.get(act, FlightMode.HOLD)
+                self._say(Severity.WARNING, f"Offboard setpoints lost for {lost_s:.1f} s: {target.name}")
+                self._set_mode(target)
+        if self.home_ned is not None:
+            est = c.est
+            breach = c.fence.breach((est.pn, est.pe, est.pd), self.home_ned, self._to_local)
+            if breach and not self._fence_breached:
+                self._fence_breached = True
+                act = int(p["GF_ACTION"])
+                self._say(Severity.CRITICAL, f"Geofence breached: {breach}")
+                if act >= 2 and c.mode not in (FlightMode.RTL, FlightMode.LAND):
+                    self.failsafe = "geofence"
+                    self._set_mode({2: FlightMode.HOLD, 3: FlightMode.RTL}.get(act, FlightMode.LAND))
+            elif not breach:
+                self._fence_breached = False
+
+    _was_airborne = False
+
+    def _offboard_climbing(self) -> bool:
+        c = self.core
+        return c.mode == FlightMode.OFFBOARD and c._climb_requested(c.nav.sp)
+
+    def _to_local(self, lat: float, lon: float) -> tuple[float, float]:
+        ref = self.core.est.ref
+        if ref is None:
+            return (math.nan, math.nan)
+        n, e, _ = ref.to_ned(lat, lon, ref.alt_m)
+        return (n, e)
+
+    def _disarm(self, why: str) -> None:
+        c = self.core
+        c.armed = False
+        c.motors = (0.0, 0.0, 0.0, 0.0)
+        self._was_airborne = False
+        self._landed_since_ns = None
+        self._say(Severity.INFO, why)
+        self._cache = None
+
+    # ------------------------------------------------------------------ state
+    def state(self) -> VehicleState:
+        with self._lock:
+            if self._cache is None:
+                self._cache = build_state(self)
+            return self._cache
+
+    def pop_status_texts(self) -> list[StatusText]:
+        with self._lock:
+            out = list(self._texts)
+            self._texts.clear()
+            return out
+
+    def pop_mission_reached(self) -> list[MissionReached]:
+        with self._lock:
+            out = list(self._reached)
+            self._reached.clear()
+            return out
+
+    # ------------------------------------------------------------------ arming
+    def arming_check(self) -> str:
+        """'' when the vehicle may arm, else the first reason it may not."""
+        c = self.core
+        e = c.est
+        p = self.params
+        t = max(c.t_ns, 0)
+        if c.t_ns < 0 or t - e.last_imu_ns > 500_000_000:
+            return "no IMU data"
+        if not e.att_valid:
+            return "attitude estimate not initialised"
+        if not p["COM_ARM_WO_GPS"]:
+            g = e.gps
+            if g is None or g.fix_type < 3:
+                return f"no 3D GPS fix (fix type {0 if g is None else g.fix_type})"
+            if not e.gps_fix_ok():
+                return f"GPS not good enough ({g.satellites} satellites, eph {g.eph_m:.1f} m)"
+            if not e.pos_valid:
+                return "position estimate not converged"
+        if c.battery.remaining < p["BAT_LOW_THR"]:
+            return f"battery low ({c.battery.remaining:.0%})"
+        if c.mode in _NO_RC:
+            return f"mode {c.mode.name} needs a manual control input (RC); none is configured"
+        if c.mode == FlightMode.OFFBOARD and not self._offboard_fresh():
+            return "offboard mode without a recent setpoint"
+        if c.mode == FlightMode.MISSION and not c.nav.items:
+            return "mission mode without a mission"
+        return ""
+
+    def arm(self, force: bool = False) -> CommandResult:
+        with self._lock:
+            c = self.core
+            if c.armed:
+                return CommandResult.accepted()
+            if not force:
+                why = self.arming_check()
+                if why:
+                    self._say(Severity.CRITICAL, f"Arming denied: {why}")
+                    return CommandResult.denied(f"Arming denied: {why}")
+            c.armed = True
+            self._armed_ns = c.t_ns
+            self._landed_since_ns = None
+            self._was_airborne = False
+            self.failsafe = ""
+            self._set_home_here()
+            c.landed_state = LandedState.ON_GROUND
+            c.ground_pd = c.est.pd
+            c.nav.enter(c.mode, True)
+            self._say(Severity.INFO, "Armed")
+            return CommandResult.accepted()
+
+    def disarm(self, force: bool = False) -> CommandResult:
+        with self._lock:
+            c = self.core
+            if not c.armed:
+                return CommandResult.accepted()
+            if c.landed_state != LandedState.ON_GROUND and not force:
+                return CommandResult.denied("Disarming denied: in air (land first, or force to kill the motors)")
+            self._disarm("Disarmed" + (" (forced)" if force else ""))
+            return CommandResult.accepted()
+
+    def _set_home_here(self) -> None:
+        e = self.core.est
+        self.home_ned = (e.pn, e.pe, e.pd)
+        lat, lon, alt = e.geo()
+        self.home = GeoPoint(lat, lon, alt)
+        self.core.nav.home = self.home_ned
+        self._say(Severity.INFO, "Home position set")
+
+    # ------------------------------------------------------------------ modes
+    def set_mode(self, mode: FlightMode) -> CommandResult:
+        with self._lock:
+            return self._mode_locked(mode)
+
+    def _mode_locked(self, mode: FlightMode) -> CommandResult:
+        c = self.core
+        if mode in _NO_RC:
+            return CommandResult.denied(f"{mode.name} needs a manual control input (RC); none is configured")
+        if mode == FlightMode.ORBIT:
+            return CommandResult.denied("orbit needs a radius and speed: use the orbit command (DO_ORBIT)")
+        if not c.est.att_valid:
+            return CommandResult.rejected("estimator not ready")
+        needs_pos = mode not in (FlightMode.LAND, FlightMode.ALTCTL)
+        if needs_pos and not c.est.pos_valid and c.armed:
+            return CommandResult.denied(f"{mode.name} needs a position estimate")
+        if mode == FlightMode.OFFBOARD and not self._offboard_fresh():
+            return CommandResult.denied("Offboard denied: no setpoint received recently (stream setpoints first)")
+        if mode == FlightMode.MISSION and not c.nav.items:
+            return CommandResult.denied("Mission denied: no mission uploaded")
+        if mode == FlightMode.RTL and self.home_ned is None:
+            return CommandResult.denied("Return denied: no home position")
+        if mode == FlightMode.OFFBOARD:
+            self._offboard_apply()
+        if self.failsafe and mode != c.mode:
+            self.failsafe = ""
+        self._set_mode(mode)
+        return CommandResult.accepted()
+
+    def _offboard_fresh(self) -> bool:
+        return (self.wall.now_ns() - self._offboard_wall_ns) * 1e-9 <= self.params["COM_OF_LOSS_T"]
+
+    def _offboard_apply(self) -> None:
+        nav = self.core.nav
+        if self._offboard_kind == "att":
+            nav.offboard_att = self._offboard_att
+            nav.offboard_sp = None
+        elif self._offboard_sp is not None:
+            nav.set_offboard(self._offboard_sp)
+
+    _offboard_kind = ""
+    _offboard_sp: OffboardSetpoint | None = None
+    _offboard_att: AttitudeTarget | None = None
+
+    def takeoff(self, alt_m: float | None = None) -> CommandResult:
+        with self._lock:
+            c = self.core
+            alt = self.params["MIS_TAKEOFF_ALT"] if alt_m is None or math.isnan(alt_m) else alt_m
+            if not math.isfinite(alt) or not 0.5 <= alt <= 1000.0:
+                return CommandResult.denied(f"Takeoff denied: altitude {alt_m} m outside [0.5, 1000] m")
+            if not c.est.pos_valid:
+                return CommandResult.rejected("Takeoff denied: no position estimate")
+            c.nav.takeoff_alt_m = alt
+            return self._mode_locked(FlightMode.TAKEOFF)
+
+    def land(self) -> CommandResult:
+        return self.set_mode(FlightMode.LAND)
+
+    def return_to_launch(self) -> CommandResult:
+        return self.set_mode(FlightMode.RTL)
+
+    def hold(self) -> CommandResult:
+        return self.set_mode(FlightMode.HOLD)
+
+    # ------------------------------------------------------------------ missions
+    def upload_mission(self, items: Sequence[MissionItem], kind: MissionKind = MissionKind.MISSION) -> CommandResult:
+        why = check_mission(items, kind)
+        if why:
+            return CommandResult.denied(why) if not why.startswith("unsupported") else CommandResult.unsupported(why)
+        with self._lock:
+            nav = self.core.nav
+            if kind == MissionKind.MISSION:
+                nav.items = list(items)
+                cur = next((i for i, it in enumerate(items) if it.current), 0)
+                nav.current, nav.reached, nav.finished, nav.phase = cur, [], False, "start"
+            elif kind == MissionKind.FENCE:
+                self.core.fence.set_items(items)
+            else:
+                self._rally = tuple(items)
+            self._cache = None
+            return CommandResult.accepted()
+
+    def download_mission(self, kind: MissionKind = MissionKind.MISSION) -> tuple[MissionItem, ...]:
+        with self._lock:
+            if kind == MissionKind.MISSION:
+                return tuple(self.core.nav.items)
+            return self.core.fence.items if kind == MissionKind.FENCE else self._rally
+
+    def clear_mission(self, kind: MissionKind = MissionKind.MISSION) -> CommandResult:
+        return self.upload_mission((), kind)
+
+    def set_current_item(self, seq: int) -> CommandResult:
+        with self._lock:
+            nav = self.core.nav
+            if not 0 <= seq < len(nav.items):
+                return CommandResult.denied(f"mission item {seq} does not exist ({len(nav.items)} items)")
+            nav.current, nav.phase, nav.finished = seq, "start", False
+            self._cache = None
+            return CommandResult.accepted()
+
+    def start_mission(self) -> CommandResult:
+        return self.set_mode(FlightMode.MISSION)
+
+    def pause_mission(self) -> CommandResult:
+        return self.set_mode(FlightMode.HOLD)
+
+    # ------------------------------------------------------------------ offboard and guided
+    def set_offboard_setpoint(self, sp: OffboardSetpoint) -> CommandResult:
+        vals = [v for vec in (sp.position_m, sp.velocity_m_s, sp.accel_m_s2) if vec is not None for v in vec]
+        vals += [v for v in (sp.yaw_rad, sp.yaw_rate_rad_s) if v is not None]
+        if not finite(vals):
+            return CommandResult.denied("offboard setpoint with NaN or infinite values")
+        with self._lock:
+            self._offboard_wall_ns = self.wall.now_ns()
+            self._offboard_sp, self._offboard_kind = sp, "sp"
+            if self.core.mode == FlightMode.OFFBOARD:
+                self._offboard_apply()
+            return CommandResult.accepted()
+
+    def set_attitude_target(self, target: AttitudeTarget) -> CommandResult:
+        vals = [target.thrust, *(target.quat or ()), *(target.body_rates_rad_s or ())]
+        if not finite(vals) or not 0.0 <= target.thrust <= 1.0:
+            return CommandResult.denied("attitude target with NaN values or thrust outside [0, 1]")
+        if target.quat is not None and abs(math.sqrt(sum(v * v for v in target.quat)) - 1.0) > 0.05:
+            return CommandResult.denied("attitude target quaternion is not normalised")
+        with self._lock:
+            self._offboard_wall_ns = self.wall.now_ns()
+            self._offboard_att, self._offboard_kind = target, "att"
+            if self.core.mode == FlightMode.OFFBOARD:
+                self._offboard_apply()
+            return CommandResult.accepted()
+
+    def _flying(self) -> str:
+        c = self.core
+        if not c.armed or c.landed_state == LandedState.ON_GROUND:
+            return "not flying (arm and take off first)"
+        if c.est.ref is None:
+            return "no global position"
+        return ""
+
+    def reposition(
+        self, lat_deg: float | None, lon_deg: float | None, alt_amsl_m: float | None, yaw_rad: float | None = None
+    ) -> CommandResult:
+        with self._lock:
+            why = self._flying()
+            if why:
+                return CommandResult.rejected(f"Reposition rejected: {why}")
+            e = self.core.est
+            ref = e.ref
+            assert ref is not None
+            lat0, lon0, alt0 = e.geo()
+            lat = lat0 if lat_deg is None or math.isnan(lat_deg) else lat_deg
+            lon = lon0 if lon_deg is None or math.isnan(lon_deg) else lon_deg
+            alt = alt0 if alt_amsl_m is None or math.isnan(alt_amsl_m) else alt_amsl_m
+            if not finite([lat, lon, alt]) or abs(lat) > 90 or abs(lon) > 180:
+                return CommandResult.denied("Reposition denied: invalid coordinates")
+            target = ref.to_ned(lat, lon, alt)
+            yaw = None if yaw_rad is None or not math.isfinite(yaw_rad) else yaw_rad
+            self.core.mode = FlightMode.HOLD
+            self.core.nav.goto(target, yaw)
+            self._cache = None
+            return CommandResult.accepted()
+
+    def orbit(
+        self,
+        radius_m: float,
+        velocity_m_s: float,
+        center_lat_deg: float | None = None,
+        center_lon_deg: float | None = None,
+        alt_amsl_m: float | None = None,
+    ) -> CommandResult:
+        with self._lock:
+            why = self._flying()
+            if why:
+                return CommandResult.rejected(f"Orbit rejected: {why}")
+            if not finite([radius_m, velocity_m_s]) or not 1.0 <= abs(radius_m) <= 10_000.0:
+                return CommandResult.denied(f"Orbit denied: radius {radius_m} m outside [1, 10000] m")
+            if abs(velocity_m_s) > self.params["MPC_XY_VEL_MAX"]:
+                return CommandResult.denied(f"Orbit denied: speed {velocity_m_s} m/s above MPC_XY_VEL_MAX")
+            e = self.core.est
+            ref = e.ref
+            assert ref is not None
+            lat0, lon0, alt0 = e.geo()
+            lat = lat0 if center_lat_deg is None or math.isnan(center_lat_deg) else center_lat_deg
+            lon = lon0 if center_lon_deg is None or math.isnan(center_lon_deg) else center_lon_deg
+            alt = alt0 if alt_amsl_m is None or math.isnan(alt_amsl_m) else alt_amsl_m
+            n, east, d = ref.to_ned(lat, lon, alt)
+            self.core.mode = FlightMode.ORBIT
+            self.core.nav.start_orbit(Orbit(n, east, d, radius_m, velocity_m_s))
+            self._cache = None
+            return CommandResult.accepted()
+
+    def change_speed(self, speed_m_s: float) -> CommandResult:
+        if not math.isfinite(speed_m_s) or not 0.0 < speed_m_s <= self.params["MPC_XY_VEL_MAX"]:
+            return CommandResult.denied(f"speed {speed_m_s} m/s outside (0, MPC_XY_VEL_MAX]")
+        with self._lock:
+            self.core.nav.cruise_m_s = speed_m_s
+            self._cache = None
+            return CommandResult.accepted()
+
+    def set_home(self, point: GeoPoint | None = None) -> CommandResult:
+        with self._lock:
+            e = self.core.est
+            if e.ref is None:
+                return CommandResult.rejected("no global position yet")
+            if point is None:
+                self._set_home_here()
+            else:
+                if not finite([point.lat_deg, point.lon_deg, point.alt_amsl_m]) or abs(point.lat_deg) > 90:
+                    return CommandResult.denied("invalid home position")
+                self.home = point
+                self.home_ned = e.ref.to_ned(point.lat_deg, point.lon_deg, point.alt_amsl_m)
+                self.core.nav.home = self.home_ned
+            self._cache = None
+            return CommandResult.accepted()
+
+    # ------------------------------------------------------------------ parameters
+    def get_param(self, name: str) -> float | int:
+        return self.params.get(name)
+
+    def set_param(self, name: str, value: float) -> CommandResult:
+        return self.params.set(name, value)

@@ -1,0 +1,376 @@
+"""The multicopter control cascade, modelled on PX4's controllers, in plain float math.
+
+position P → velocity PID (+ acceleration feed-forward) → thrust vector → attitude setpoint (quaternion)
+→ attitude P (tilt before yaw, ``MC_YAW_WEIGHT``) → body-rate PID → quad-X mixer (yaw gives way first).
+
+Gains are the PX4 parameters (``MPC_*``, ``MC_*``); each controller re-reads them when the parameter
+registry's version changes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from harness.autopilot.api import Quat
+from harness.autopilot.mathutil import G_M_S2
+from harness.autopilot.params import Params
+
+NAN = math.nan
+_isnan = math.isnan
+
+
+class TrajectorySetpoint:
+    """What a flight mode asks of the position controller (PX4's trajectory setpoint); NaN = unset.
+
+    Position given → velocity = P·error + velocity (as feed-forward); position NaN → velocity alone.
+    """
+
+    __slots__ = ("ax", "ay", "az", "px", "py", "pz", "vx", "vy", "vz", "yaw", "yaw_rate")
+
+    def __init__(self) -> None:
+        self.px = self.py = self.pz = NAN
+        self.vx = self.vy = self.vz = NAN
+        self.ax = self.ay = self.az = NAN
+        self.yaw = NAN
+        self.yaw_rate = NAN
+
+    def set(
+        self,
+        pos: tuple[float, float, float] = (NAN, NAN, NAN),
+        vel: tuple[float, float, float] = (NAN, NAN, NAN),
+        acc: tuple[float, float, float] = (NAN, NAN, NAN),
+        yaw: float = NAN,
+        yaw_rate: float = NAN,
+    ) -> None:
+        self.px, self.py, self.pz = pos
+        self.vx, self.vy, self.vz = vel
+        self.ax, self.ay, self.az = acc
+        self.yaw = yaw
+        self.yaw_rate = yaw_rate
+
+
+class PositionControl:
+    """Position P and velocity PID; output a thrust vector in NED (normalised thrust units)."""
+
+    def __init__(self, params: Params) -> None:
+        self.params = params
+        self._ver = -1
+        self.ix = self.iy = 0.0
+        self.iz = 0.0
+        self.xy_vel_max = params["MPC_XY_VEL_MAX"]
+        self.thr = (0.0, 0.0, -params["MPC_THR_HOVER"])
+        self.vel_sp = (0.0, 0.0, 0.0)
+        self._load()
+
+    def _load(self) -> None:
+        p = self.params
+        self._ver = p.version
+        self.kp_xy, self.kp_z = p["MPC_XY_P"], p["MPC_Z_P"]
+        self.kv_xy, self.ki_xy, self.kd_xy = p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_I_ACC"], p["MPC_XY_VEL_D_ACC"]
+        self.kv_z, self.ki_z, self.kd_z = p["MPC_Z_VEL_P_ACC"], p["MPC_Z_VEL_I_ACC"], p["MPC_Z_VEL_D_ACC"]
+        self.vel_up, self.vel_dn = p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"]
+        self.hover = p["MPC_THR_HOVER"]
+        self.thr_min, self.thr_max = p["MPC_THR_MIN"], p["MPC_THR_MAX"]
+        self.tilt_max = math.radians(p["MPC_TILTMAX_AIR"])
+        self.acc_hor_max = p["MPC_ACC_HOR_MAX"]
+
+    def reset(self) -> None:
+        self.ix = self.iy = self.iz = 0.0
+
+    def update(
+        self,
+        sp: TrajectorySetpoint,
+        pos: tuple[float, float, float],
+        vel: tuple[float, float, float],
+        dt: float,
+    ) -> tuple[float, float, float]:
+        if self.params.version != self._ver:
+            self._load()
+        pn, pe, pd = pos
+        vn, ve, vd = vel
+        # position P -> velocity setpoint (feed-forward added)
+        vx = 0.0 if _isnan(sp.vx) else sp.vx
+        vy = 0.0 if _isnan(sp.vy) else sp.vy
+        vz = 0.0 if _isnan(sp.vz) else sp.vz
+        if not _isnan(sp.px):
+            vx += self.kp_xy * (sp.px - pn)
+            vy += self.kp_xy * (sp.py - pe)
+        elif _isnan(sp.vx):
+            vx, vy = vn, ve  # acceleration only: no horizontal velocity error
+        if not _isnan(sp.pz):
+            vz += self.kp_z * (sp.pz - pd)
+        elif _isnan(sp.vz):
+            vz = vd
+        h = math.sqrt(vx * vx + vy * vy)
+        lim = self.xy_vel_max
+        if h > lim:
+            vx *= lim / h
+            vy *= lim / h
+        vz = -self.vel_up if vz < -self.vel_up else (self.vel_dn if vz > self.vel_dn else vz)
+        self.vel_sp = (vx, vy, vz)
+        # velocity PID -> acceleration setpoint
+        ex, ey, ez = vx - vn, vy - ve, vz - vd
+        ax = self.kv_xy * ex + self.ix + (0.0 if _isnan(sp.ax) else sp.ax)
+        ay = self.kv_xy * ey + self.iy + (0.0 if _isnan(sp.ay) else sp.ay)
+        az = self.kv_z * ez + self.iz + (0.0 if _isnan(sp.az) else sp.az)
+        ah = math.sqrt(ax * ax + ay * ay)
+        if ah > self.acc_hor_max:
+            ax *= self.acc_hor_max / ah
+            ay *= self.acc_hor_max / ah
+        # acceleration -> thrust vector (PX4: body z from the tilt, collective from the vertical part)
+        bx, by, bz = -ax, -ay, G_M_S2
+        bn = math.sqrt(bx * bx + by * by + bz * bz)
+        bx, by, bz = bx / bn, by / bn, bz / bn
+        cos_max = math.cos(self.tilt_max)
+        if bz < cos_max:
+            s = math.sqrt(1.0 - cos_max * cos_max) / math.sqrt(bx * bx + by * by)
+            bx, by, bz = bx * s, by * s, cos_max
+        hov = self.hover
+        coll = (az * (hov / G_M_S2) - hov) / bz
+        sat_lo = coll > -self.thr_min
+        if sat_lo:
+            coll = -self.thr_min
+        tx, ty, tz = bx * coll, by * coll, bz * coll
+        # keep vertical thrust priority: limit the horizontal part to what is left below thr_max
+        sat_hi = False
+        if -tz > self.thr_max:
+            tz = -self.thr_max
+            sat_hi = True
+        th = math.sqrt(tx * tx + ty * ty)
+        room = math.sqrt(max(self.thr_max * self.thr_max - tz * tz, 0.0))
+        if th > room:
+            tx *= room / th
+            ty *= room / th
+        # integrators with anti-windup
+        if not ((sat_hi and ez < 0.0) or (sat_lo and ez > 0.0)):
+            self.iz += self.ki_z * ez * dt
+            lim_i = G_M_S2
+            self.iz = -lim_i if self.iz < -lim_i else (lim_i if self.iz > lim_i else self.iz)
+        if th <= room:
+            self.ix += self.ki_xy * ex * dt
+            self.iy += self.ki_xy * ey * dt
+            ih = math.sqrt(self.ix * self.ix + self.iy * self.iy)
+            if ih > 3.0:
+                self.ix *= 3.0 / ih
+                self.iy *= 3.0 / ih
+        self.thr = (tx, ty, tz)
+        return self.thr
+
+
+def thrust_to_attitude(thr: tuple[float, float, float], yaw: float) -> tuple[Quat, float]:
+    """PX4's bodyzToAttitude: the attitude whose body z opposes the thrust vector with the given yaw."""
+    tx, ty, tz = thr
+    n = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if n < 1e-6:
+        zx, zy, zz = 0.0, 0.0, 1.0
+    else:
+        zx, zy, zz = -tx / n, -ty / n, -tz / n
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    # y_C = (-sin yaw, cos yaw, 0); body_x = y_C x body_z
+    xx, xy, xz = cy * zz, sy * zz, -sy * zy - cy * zx
+    if zz < 0.0:
+        xx, xy, xz = -xx, -xy, -xz
+    xn = math.sqrt(xx * xx + xy * xy + xz * xz)
+    xx, xy, xz = xx / xn, xy / xn, xz / xn
+    # body_y = body_z x body_x
+    yx, yy, yz = zy * xz - zz * xy, zz * xx - zx * xz, zx * xy - zy * xx
+    return dcm_to_quat(xx, yx, zx, xy, yy, zy, xz, yz, zz), n
+
+
+def dcm_to_quat(
+    r00: float, r01: float, r02: float, r10: float, r11: float, r12: float, r20: float, r21: float, r22: float
+) -> Quat:
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        return (0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s)
+    if r00 > r11 and r00 > r22:
+        s = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
+        return ((r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s)
+    if r11 > r22:
+        s = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
+        return ((r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s)
+    s = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
+    return ((r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s)
+
+
+class AttitudeControl:
+    """Quaternion attitude P (PX4): tilt is corrected with full authority, yaw with ``MC_YAW_WEIGHT``."""
+
+    def __init__(self, params: Params) -> None:
+        self.params = params
+        self._ver = -1
+        self._load()
+
+    def _load(self) -> None:
+        p = self.params
+        self._ver = p.version
+        self.kr, self.kp, self.ky = p["MC_ROLL_P"], p["MC_PITCH_P"], p["MC_YAW_P"]
+        self.yaw_w = p["MC_YAW_WEIGHT"]
+        self.max_r = math.radians(p["MC_ROLLRATE_MAX"])
+        self.max_p = math.radians(p["MC_PITCHRATE_MAX"])
+        self.max_y = math.radians(p["MC_YAWRATE_MAX"])
+
+    def update(self, q: Quat, qd: Quat, yaw_rate_ff: float = 0.0) -> tuple[float, float, float]:
+        if self.params.version != self._ver:
+            self._load()
+        w, x, y, z = q
+        dw, dx, dy, dz = qd
+        # body z axes in world (third column of R)
+        ex, ey, ez = 2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)
+        fx, fy, fz = 2 * (dx * dz + dw * dy), 2 * (dy * dz - dw * dx), 1 - 2 * (dx * dx + dy * dy)
+        # shortest rotation e_z -> e_z_d, applied to q: reduced attitude setpoint
+        d = ex * fx + ey * fy + ez * fz
+        cx, cy, cz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
+        if d > -0.9999:
+            rw = 1.0 + d
+            rn = math.sqrt(rw * rw + cx * cx + cy * cy + cz * cz)
+            rw, cx, cy, cz = rw / rn, cx / rn, cy / rn, cz / rn
+            # qr = (rw, c) * q
+            qrw = rw * w - cx * x - cy * y - cz * z
+            qrx = rw * x + cx * w + cy * z - cz * y
+            qry = rw * y - cx * z + cy * w + cz * x
+            qrz = rw * z + cx * y - cy * x + cz * w
+        else:
+            qrw, qrx, qry, qrz = dw, dx, dy, dz
+        # mix: qmix = qr^-1 * qd, keep yaw_w of its yaw part
+        mw = qrw * dw + qrx * dx + qry * dy + qrz * dz
+        mz = qrw * dz - qrx * dy + qry * dx - qrz * dw
+        if mw < 0.0:
+            mw, mz = -mw, -mz
+        mw = min(mw, 1.0)
+        mz = max(-1.0, min(mz, 1.0))
+        a = self.yaw_w
+        pw, pz = math.cos(a * math.acos(mw)), math.sin(a * math.asin(mz))
+        # qd' = qr * (pw, 0, 0, pz)
+        sw = qrw * pw - qrz * pz
+        sx = qrx * pw + qry * pz
+        sy = qry * pw - qrx * pz
+        sz = qrz * pw + qrw * pz
+        # error qe = q^-1 * qd'
+        ew = w * sw + x * sx + y * sy + z * sz
+        erx = w * sx - x * sw - y * sz + z * sy
+        ery = w * sy + x * sz - y * sw - z * sx
+        erz = w * sz - x * sy + y * sx - z * sw
+        s = 2.0 if ew >= 0.0 else -2.0
+        rr = self.kr * s * erx
+        rp = self.kp * s * ery
+        ry = self.ky * s * erz / max(a, 1e-3)
+        if yaw_rate_ff:
+            # feed-forward about the world z axis, expressed in body axes
+            rr += yaw_rate_ff * ex
+            rp += yaw_rate_ff * ey
+            ry += yaw_rate_ff * ez
+        rr = max(-self.max_r, min(rr, self.max_r))
+        rp = max(-self.max_p, min(rp, self.max_p))
+        ry = max(-self.max_y, min(ry, self.max_y))
+        return (rr, rp, ry)
+
+
+class RateControl:
+    """Body-rate PID with integrator anti-windup driven by the mixer's saturation flags."""
+
+    def __init__(self, params: Params) -> None:
+        self.params = params
+        self._ver = -1
+        self.i = [0.0, 0.0, 0.0]
+        self.prev = (0.0, 0.0, 0.0)
+        self._load()
+
+    def _load(self) -> None:
+        p = self.params
+        self._ver = p.version
+        self.kp = (p["MC_ROLLRATE_P"], p["MC_PITCHRATE_P"], p["MC_YAWRATE_P"])
+        self.ki = (p["MC_ROLLRATE_I"], p["MC_PITCHRATE_I"], p["MC_YAWRATE_I"])
+        self.kd = (p["MC_ROLLRATE_D"], p["MC_PITCHRATE_D"], p["MC_YAWRATE_D"])
+        self.ilim = (p["MC_RR_INT_LIM"], p["MC_PR_INT_LIM"], p["MC_YR_INT_LIM"])
+
+    def reset(self) -> None:
+        self.i = [0.0, 0.0, 0.0]
+
+    def update(
+        self,
+        rates_sp: tuple[float, float, float],
+        rates: tuple[float, float, float],
+        dt: float,
+        sat_pos: tuple[bool, bool, bool] = (False, False, False),
+        sat_neg: tuple[bool, bool, bool] = (False, False, False),
+        integrate: bool = True,
+    ) -> tuple[float, float, float]:
+        if self.params.version != self._ver:
+            self._load()
+        out = [0.0, 0.0, 0.0]
+        prev = self.prev
+        i = self.i
+        for k in range(3):
+            e = rates_sp[k] - rates[k]
+            d = (rates[k] - prev[k]) / dt if dt > 0.0 else 0.0
+            out[k] = self.kp[k] * e + i[k] - self.kd[k] * d
+            if integrate and not ((sat_pos[k] and e > 0.0) or (sat_neg[k] and e < 0.0)):
+                v = i[k] + self.ki[k] * e * dt
+                lim = self.ilim[k]
+                i[k] = -lim if v < -lim else (lim if v > lim else v)
+        self.prev = rates
+        return (out[0], out[1], out[2])
+
+
+# PX4 quad-X geometry: (roll, pitch, yaw) coefficient of each motor, index order as the sensor frame says.
+_QUAD_X = (
+    (-0.707107, 0.707107, 1.0),  # 0 front right, CCW
+    (0.707107, -0.707107, 1.0),  # 1 rear left, CCW
+    (0.707107, 0.707107, -1.0),  # 2 front left, CW
+    (-0.707107, -0.707107, -1.0),  # 3 rear right, CW
+)
+
+
+@dataclass(slots=True)
+class MixerResult:
+    motors: tuple[float, float, float, float]
+    sat_pos: tuple[bool, bool, bool]
+    """Per axis (roll, pitch, yaw): more positive torque was asked than could be given."""
+    sat_neg: tuple[bool, bool, bool]
+
+
+def mix_quad_x(roll: float, pitch: float, yaw: float, thrust: float, idle: float = 0.0) -> MixerResult:
+    """Quad-X mixer with saturation handling: roll/pitch first (thrust shifted, then scaled), yaw last.
+
+    Outputs are in [idle, 1]. Yaw is reduced to the room roll/pitch and thrust leave ("yaw gives way").
+    """
+    g = _QUAD_X
+    m = [thrust + g[i][0] * roll + g[i][1] * pitch for i in range(4)]
+    lo, hi = min(m), max(m)
+    rp_sat = False
+    span = hi - lo
+    if span > 1.0 - idle:
+        # even at best thrust the roll/pitch demand does not fit: scale it down
+        s = (1.0 - idle) / span
+        roll *= s
+        pitch *= s
+        rp_sat = True
+        m = [thrust + g[i][0] * roll + g[i][1] * pitch for i in range(4)]
+        lo, hi = min(m), max(m)
+    if hi > 1.0:
+        shift = hi - 1.0
+        m = [v - shift for v in m]
+    elif lo < idle:
+        shift = idle - lo
+        m = [v + shift for v in m]
+    # yaw: the range of yaw that keeps every motor in [idle, 1]
+    ymax, ymin = math.inf, -math.inf
+    for i in range(4):
+        c = g[i][2]
+        up, dn = (1.0 - m[i]) / c, (idle - m[i]) / c
+        if c > 0:
+            ymax, ymin = min(ymax, up), max(ymin, dn)
+        else:
+            ymax, ymin = min(ymax, dn), max(ymin, up)
+    y = min(max(yaw, ymin), ymax) if ymin <= ymax else 0.0
+    yaw_sat_pos = yaw > y + 1e-9
+    yaw_sat_neg = yaw < y - 1e-9
+    out = tuple(min(max(m[i] + g[i][2] * y, 0.0), 1.0) for i in range(4))
+    return MixerResult(
+        (out[0], out[1], out[2], out[3]),
+        (rp_sat and roll > 0, rp_sat and pitch > 0, yaw_sat_pos),
+        (rp_sat and roll < 0, rp_sat and pitch < 0, yaw_sat_neg),
+    )

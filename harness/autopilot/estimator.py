@@ -1,0 +1,304 @@
+"""State estimation from the sensors: attitude complementary filter and position/velocity fusion.
+
+Attitude: a Mahony-style complementary filter on the gyro, corrected towards gravity by the accelerometer
+(with the linear acceleration measured by GPS velocity taken out) and in heading by the magnetometer
+(``EKF2_MAG_DECL`` is the declination), with gyro bias learning.
+
+Position / velocity: accelerometer (rotated to NED, gravity removed) predicts at every tick; GPS position
+and velocity correct the horizontal axes against the state at the time the GPS sample was measured (a
+short history covers GPS latency); the barometer corrects height; GPS altitude only sets the AMSL
+offset of the local frame. The local NED frame has its origin where the first good GPS fix was taken
+(like PX4's EKF origin) unless an origin is given.
+
+``use_ground_truth`` replaces all of this by the frame's ``truth`` (debugging only).
+Everything is plain float math: it runs every tick for every vehicle.
+"""
+
+from __future__ import annotations
+
+import math
+
+from harness.autopilot.mathutil import G_M_S2, GeoRef, quat_from_euler
+from harness.autopilot.params import Params
+from harness.fdm.frame import Gps, SensorFrame
+
+_HIST = 64
+
+
+class Estimator:
+    def __init__(self, params: Params, use_ground_truth: bool = False, origin: GeoRef | None = None) -> None:
+        self.params = params
+        self.use_ground_truth = use_ground_truth
+        self.ref: GeoRef | None = origin
+        self._ref_given = origin is not None
+        self.q = (1.0, 0.0, 0.0, 0.0)
+        self.bias = [0.0, 0.0, 0.0]
+        self.rates = (0.0, 0.0, 0.0)
+        self.accel_body = (0.0, 0.0, -G_M_S2)
+        self.pn = self.pe = self.pd = 0.0
+        self.vn = self.ve = self.vd = 0.0
+        self.abn = self.abe = self.abd = 0.0
+        self.att_valid = False
+        self.pos_valid = False
+        self.height_valid = False
+        self.ref_alt_valid = False
+        self.last_gps_ns = -(10**18)
+        self.last_baro_ns = -(10**18)
+        self.last_mag_ns = -(10**18)
+        self.last_imu_ns = -(10**18)
+        self.gps: Gps | None = None
+        self._baro_ref: float | None = None
+        self._ref_alt_sum = 0.0
+        self._ref_alt_n = 0
+        self._hist: list[tuple[int, float, float, float, float, float, float]] = []
+        self._hist_i = 0
+        self._alin = [0.0, 0.0, 0.0]
+        self._gps_vel_prev: tuple[int, float, float, float] | None = None
+        self._truth0: tuple[float, float, float] | None = None
+        self._t_ns = 0
+        self._ver = -1
+        self._load()
+
+    def _load(self) -> None:
+        p = self.params
+        self._ver = p.version
+        self._w_acc = p["ATT_W_ACC"]
+        self._w_mag = p["ATT_W_MAG"]
+        self._w_bias = p["ATT_W_GYRO_BIAS"]
+        self._decl = math.radians(p["EKF2_MAG_DECL"])
+        self._tau_gps_p = 2.0 * p["EKF2_GPS_P_NOISE"]
+        self._tau_gps_v = 1.0 * p["EKF2_GPS_V_NOISE"]
+        self._tau_baro = 0.6 * p["EKF2_BARO_NOISE"]
+        self._req_sats = int(p["EKF2_REQ_NSATS"])
+        self._req_eph = p["EKF2_REQ_EPH"]
+
+    # ---- properties the rest of the autopilot reads ----
+    @property
+    def alt_amsl_m(self) -> float:
+        return (self.ref.alt_m if self.ref is not None else 0.0) - self.pd
+
+    def geo(self) -> tuple[float, float, float]:
+        """Estimated (lat_deg, lon_deg, alt_amsl_m); zeros before a GPS reference exists."""
+        if self.ref is None:
+            return (0.0, 0.0, -self.pd)
+        return self.ref.to_geo(self.pn, self.pe, self.pd)
+
+    @property
+    def yaw(self) -> float:
+        w, x, y, z = self.q
+        return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+    def gps_fix_ok(self) -> bool:
+        g = self.gps
+        return (
+            g is not None
+            and g.fix_type >= 3
+            and g.satellites >= self._req_sats
+            and g.eph_m <= self._req_eph
+            and self._t_ns - self.last_gps_ns < 1_000_000_000
+        )
+
+    # ---- the update ----
+    def update(self, frame: SensorFrame, dt: float) -> None:
+        if self.params.version != self._ver:
+            self._load()
+        self._t_ns = frame.t_ns
+        if self.use_ground_truth:
+            self._update_truth(frame)
+            return
+        imu = frame.imu
+        self.last_imu_ns = frame.t_ns
+        fx, fy, fz = imu.accel_body_m_s2
+        self.accel_body = imu.accel_body_m_s2
+        if not self.att_valid:
+            if frame.mag is not None:
+                self._init_attitude(fx, fy, fz, frame.mag.field_body_gauss)
+            self.rates = imu.gyro_body_rad_s
+        else:
+            self._attitude(frame, fx, fy, fz, dt)
+        self._position(frame, fx, fy, fz, dt)
+
+    def _init_attitude(self, fx: float, fy: float, fz: float, mag: tuple[float, float, float]) -> None:
+        roll = math.atan2(-fy, -fz)
+        pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
+        cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+        mx, my, mz = mag
+        # de-rotate the field by roll and pitch to the horizontal plane
+        hx = mx * cp + my * sr * sp + mz * cr * sp
+        hy = my * cr - mz * sr
+        yaw = math.atan2(-hy, hx) + self._decl
+        self.q = quat_from_euler(roll, pitch, yaw)
+        self.att_valid = True
+        self.last_mag_ns = self._t_ns
+
+    def _attitude(self, frame: SensorFrame, fx: float, fy: float, fz: float, dt: float) -> None:
+        w, x, y, z = self.q
+        gx, gy, gz = frame.imu.gyro_body_rad_s
+        b = self.bias
+        ex = ey = ez = 0.0
+        # accelerometer: measured "up" (specific force) versus estimated up = R^T (g - a_lin) / |.|
+        fn = math.sqrt(fx * fx + fy * fy + fz * fz)
+        if 0.5 * G_M_S2 < fn < 1.5 * G_M_S2:
+            an, ae, ad = self._alin
+            rn, re, rd = an, ae, ad - G_M_S2  # world specific force expected: a_lin - g
+            rl = math.sqrt(rn * rn + re * re + rd * rd)
+            rn, re, rd = rn / rl, re / rl, rd / rl
+            # world -> body: R^T v
+            vx = (1 - 2 * (y * y + z * z)) * rn + 2 * (x * y + w * z) * re + 2 * (x * z - w * y) * rd
+            vy = 2 * (x * y - w * z) * rn + (1 - 2 * (x * x + z * z)) * re + 2 * (y * z + w * x) * rd
+            vz = 2 * (x * z + w * y) * rn + 2 * (y * z - w * x) * re + (1 - 2 * (x * x + y * y)) * rd
+            mx, my, mz = fx / fn, fy / fn, fz / fn
+            k = self._w_acc
+            ex = k * (my * vz - mz * vy)
+            ey = k * (mz * vx - mx * vz)
+            ez = k * (mx * vy - my * vx)
+        mag = frame.mag
+        if mag is not None:
+            self.last_mag_ns = frame.t_ns
+            bx, by, bz = mag.field_body_gauss
+            # field in world: R m
+            wn = (1 - 2 * (y * y + z * z)) * bx + 2 * (x * y - w * z) * by + 2 * (x * z + w * y) * bz
+            we = 2 * (x * y + w * z) * bx + (1 - 2 * (x * x + z * z)) * by + 2 * (y * z - w * x) * bz
+            if wn * wn + we * we > 1e-6:
+                err = math.atan2(we, wn) - self._decl
+                err = (err + math.pi) % (2.0 * math.pi) - math.pi
+                # world-z correction -k*err, into body: R^T (0, 0, 1)
+                c = -self._w_mag * err
+                ex += c * 2 * (x * z - w * y)
+                ey += c * 2 * (y * z + w * x)
+                ez += c * (1 - 2 * (x * x + y * y))
+        kb = self._w_bias * dt
+        b[0] -= kb * ex
+        b[1] -= kb * ey
+        b[2] -= kb * ez
+        p, q_, r = gx - b[0], gy - b[1], gz - b[2]
+        self.rates = (p, q_, r)
+        ox, oy, oz = p + ex, q_ + ey, r + ez
+        h = 0.5 * dt
+        nw = w + h * (-x * ox - y * oy - z * oz)
+        nx = x + h * (w * ox + y * oz - z * oy)
+        ny = y + h * (w * oy - x * oz + z * ox)
+        nz = z + h * (w * oz + x * oy - y * ox)
+        n = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+        self.q = (nw * n, nx * n, ny * n, nz * n)
+
+    def _position(self, frame: SensorFrame, fx: float, fy: float, fz: float, dt: float) -> None:
+        w, x, y, z = self.q
+        an = (1 - 2 * (y * y + z * z)) * fx + 2 * (x * y - w * z) * fy + 2 * (x * z + w * y) * fz + self.abn
+        ae = 2 * (x * y + w * z) * fx + (1 - 2 * (x * x + z * z)) * fy + 2 * (y * z - w * x) * fz + self.abe
+        ad = 2 * (x * z - w * y) * fx + 2 * (y * z + w * x) * fy + (1 - 2 * (x * x + y * y)) * fz + G_M_S2 + self.abd
+        h = 0.5 * dt * dt
+        self.pn += self.vn * dt + an * h
+        self.pe += self.ve * dt + ae * h
+        self.pd += self.vd * dt + ad * h
+        self.vn += an * dt
+        self.ve += ae * dt
+        self.vd += ad * dt
+        t = frame.t_ns
+        entry = (t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd)
+        if len(self._hist) < _HIST:
+            self._hist.append(entry)
+        else:
+            self._hist[self._hist_i] = entry
+            self._hist_i = (self._hist_i + 1) % _HIST
+        baro = frame.baro
+        if baro is not None:
+            self._fuse_baro(baro.alt_amsl_m, t)
+        gps = frame.gps
+        if gps is not None:
+            self.gps = gps
+            self._fuse_gps(gps, t)
+
+    def _past(self, t_ns: int) -> tuple[int, float, float, float, float, float, float]:
+        best = None
+        for e in self._hist:
+            if e[0] <= t_ns and (best is None or e[0] > best[0]):
+                best = e
+        if best is None:
+            best = min(self._hist, key=lambda e: e[0])
+        return best
+
+    def _fuse_baro(self, alt_m: float, t_ns: int) -> None:
+        if self._baro_ref is None:
+            self._baro_ref = alt_m + self.pd
+            self.last_baro_ns = t_ns
+            self.height_valid = True
+            return
+        dt = (t_ns - self.last_baro_ns) * 1e-9
+        self.last_baro_ns = t_ns
+        if dt <= 0.0:
+            return
+        innov = (self._baro_ref - alt_m) - self.pd
+        k = 1.0 - math.exp(-dt / self._tau_baro)
+        self.pd += k * innov
+        self.vd += 0.6 * k * k / dt * innov
+        self.abd += 0.05 * k * innov
+
+    def _fuse_gps(self, g: Gps, t_ns: int) -> None:
+        good = g.fix_type >= 3 and g.satellites >= self._req_sats and g.eph_m <= self._req_eph
+        if not good:
+            return
+        if self.ref is None:
+            self.ref = GeoRef(g.lat_deg, g.lon_deg, g.alt_amsl_m)
+            self.pn = self.pe = 0.0
+            self.vn, self.ve = g.vel_ned_m_s[0], g.vel_ned_m_s[1]
+            self._hist.clear()
+            self._hist_i = 0
+        n, e, _ = self.ref.to_ned(g.lat_deg, g.lon_deg, g.alt_amsl_m)
+        # AMSL offset of the local frame: average of GPS altitude + local down position
+        self._ref_alt_n += 1
+        sample = g.alt_amsl_m + self.pd
+        if not self._ref_given:
+            self._ref_alt_sum += sample
+            m = self._ref_alt_sum / self._ref_alt_n if self._ref_alt_n < 200 else None
+            if m is not None:
+                self.ref.alt_m = m
+            else:
+                self.ref.alt_m += 0.005 * (sample - self.ref.alt_m)
+        self.ref_alt_valid = True
+        dt = (t_ns - self.last_gps_ns) * 1e-9 if self.pos_valid else 0.0
+        self.last_gps_ns = t_ns
+        vn_g, ve_g, vd_g = g.vel_ned_m_s
+        prev = self._gps_vel_prev
+        if prev is not None and 0.0 < (g.measured_at_ns - prev[0]) * 1e-9 < 1.0:
+            gdt = (g.measured_at_ns - prev[0]) * 1e-9
+            a = self._alin
+            k = 1.0 - math.exp(-gdt / 0.3)
+            a[0] += k * ((vn_g - prev[1]) / gdt - a[0])
+            a[1] += k * ((ve_g - prev[2]) / gdt - a[1])
+            a[2] += k * ((vd_g - prev[3]) / gdt - a[2])
+        self._gps_vel_prev = (g.measured_at_ns, vn_g, ve_g, vd_g)
+        if not self.pos_valid or dt <= 0.0 or dt > 2.0:
+            self.pn, self.pe = n, e
+            self.vn, self.ve = vn_g, ve_g
+            self.pos_valid = True
+            return
+        past = self._past(g.measured_at_ns)
+        ipn, ipe = n - past[1], e - past[2]
+        ivn, ive, ivd = vn_g - past[4], ve_g - past[5], vd_g - past[6]
+        kp = 1.0 - math.exp(-dt / self._tau_gps_p)
+        kv = 1.0 - math.exp(-dt / self._tau_gps_v)
+        self.pn += kp * ipn
+        self.pe += kp * ipe
+        self.vn += kv * ivn + 0.5 * kp * kp / dt * ipn
+        self.ve += kv * ive + 0.5 * kp * kp / dt * ipe
+        self.vd += 0.3 * kv * ivd
+        kb = 0.1 * kv
+        self.abn += kb * ivn
+        self.abe += kb * ive
+
+    def _update_truth(self, frame: SensorFrame) -> None:
+        tr = frame.truth
+        if self._truth0 is None:
+            self._truth0 = tr.pos_ned_m
+            if self.ref is None:
+                self.ref = GeoRef(tr.lat_deg, tr.lon_deg, tr.alt_amsl_m)
+        p0 = self._truth0
+        self.pn, self.pe, self.pd = tr.pos_ned_m[0] - p0[0], tr.pos_ned_m[1] - p0[1], tr.pos_ned_m[2] - p0[2]
+        self.vn, self.ve, self.vd = tr.vel_ned_m_s
+        self.q = tr.quat
+        self.rates = tr.rates_body_rad_s
+        self.accel_body = frame.imu.accel_body_m_s2
+        self.gps = frame.gps if frame.gps is not None else self.gps
+        self.att_valid = self.pos_valid = self.height_valid = self.ref_alt_valid = True
+        self.last_gps_ns = self.last_baro_ns = self.last_mag_ns = self.last_imu_ns = frame.t_ns

@@ -1,0 +1,208 @@
+"""The per-tick flight core: estimator → navigator → control cascade → mixer, plus the land detector.
+
+``FlightCore`` holds no lock and knows nothing of threads or MAVLink; ``Autopilot`` (``autopilot.py``)
+wraps it with the command API, arming checks and failsafes.
+"""
+
+from __future__ import annotations
+
+import math
+
+from harness.autopilot.api import FlightMode, LandedState
+from harness.autopilot.battery import Battery
+from harness.autopilot.control import (
+    AttitudeControl,
+    PositionControl,
+    RateControl,
+    mix_quad_x,
+    thrust_to_attitude,
+)
+from harness.autopilot.estimator import Estimator
+from harness.autopilot.geofence import Geofence
+from harness.autopilot.mathutil import GeoRef
+from harness.autopilot.navigator import Navigator
+from harness.autopilot.params import Params
+from harness.fdm.frame import SensorFrame
+
+_isnan = math.isnan
+ZERO4 = (0.0, 0.0, 0.0, 0.0)
+
+
+class FlightCore:
+    def __init__(self, params: Params, use_ground_truth: bool = False, origin: GeoRef | None = None) -> None:
+        self.params = params
+        self.texts: list[tuple[int, str]] = []
+        self.est = Estimator(params, use_ground_truth, origin)
+        self.nav = Navigator(params, self.est, self._text)
+        self.pos_ctl = PositionControl(params)
+        self.att_ctl = AttitudeControl(params)
+        self.rate_ctl = RateControl(params)
+        self.battery = Battery(params)
+        self.fence = Geofence(params)
+        self.armed = False
+        self.mode = FlightMode.HOLD
+        self.landed_state = LandedState.ON_GROUND
+        self.motors: tuple[float, float, float, float] = ZERO4
+        self.collective = 0.0
+        self.t_ns = -1
+        self.ground_pd = 0.0
+        self.yaw_hold = 0.0
+        self._contact_s = 0.0
+        self._landed_s = 0.0
+        self._sat_pos = (False, False, False)
+        self._sat_neg = (False, False, False)
+        self._ver = -1
+        self._load()
+
+    def _text(self, severity: int, text: str) -> None:
+        self.texts.append((severity, text))
+
+    def _load(self) -> None:
+        p = self.params
+        self._ver = p.version
+        self._idle = p["MPC_THR_MIN"] * 0.5
+        self._hover = p["MPC_THR_HOVER"]
+        self._fac = p["THR_MDL_FAC"]
+
+    def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
+        if self.params.version != self._ver:
+            self._load()
+        dt = (frame.t_ns - self.t_ns) * 1e-9 if self.t_ns >= 0 else 0.004
+        if not 0.0 < dt <= 0.05:
+            dt = 0.004 if dt <= 0.0 else 0.05
+        self.t_ns = frame.t_ns
+        self.est.update(frame, dt)
+        self.battery.update(self.motors, self.armed, dt)
+        motors = self._control(dt)
+        self._land_detector(dt)
+        self.motors = motors
+        return motors
+
+    def _reset_controllers(self) -> None:
+        self.pos_ctl.reset()
+        self.rate_ctl.reset()
+        self.yaw_hold = self.est.yaw
+        self.nav.yaw_sp = self.yaw_hold
+
+    def _control(self, dt: float) -> tuple[float, float, float, float]:
+        est = self.est
+        nav = self.nav
+        if not self.armed or not est.att_valid:
+            self._reset_controllers()
+            self.collective = 0.0
+            return ZERO4
+        on_ground = self.landed_state == LandedState.ON_GROUND
+        att = nav.offboard_att if self.mode == FlightMode.OFFBOARD else None
+        if att is not None:
+            if on_ground and att.thrust < self._hover * 0.6:
+                return self._idle_out()
+            if att.quat is not None:
+                rates_sp = self.att_ctl.update(est.q, att.quat)
+            else:
+                rates_sp = att.body_rates_rad_s or (0.0, 0.0, 0.0)
+            if att.quat is not None and att.body_rates_rad_s is not None:
+                rates_sp = (
+                    rates_sp[0] + att.body_rates_rad_s[0],
+                    rates_sp[1] + att.body_rates_rad_s[1],
+                    rates_sp[2] + att.body_rates_rad_s[2],
+                )
+            return self._rates_to_motors(rates_sp, att.thrust, dt)
+        sp = nav.update(dt, on_ground)
+        if on_ground and not self._climb_requested(sp):
+            return self._idle_out()
+        if on_ground:
+            # leaving the ground: no horizontal integrator from the time on the ground
+            self.pos_ctl.ix = self.pos_ctl.iy = 0.0
+        thr = self.pos_ctl.update(sp, (est.pn, est.pe, est.pd), (est.vn, est.ve, est.vd), dt)
+        yaw_rate_ff = 0.0
+        if not _isnan(sp.yaw):
+            self.yaw_hold = sp.yaw
+        if not _isnan(sp.yaw_rate):
+            yaw_rate_ff = sp.yaw_rate
+            if _isnan(sp.yaw):
+                self.yaw_hold = math.remainder(self.yaw_hold + sp.yaw_rate * dt, 2.0 * math.pi)
+        qd, coll = thrust_to_attitude(thr, self.yaw_hold)
+        rates_sp = self.att_ctl.update(est.q, qd, yaw_rate_ff)
+        return self._rates_to_motors(rates_sp, coll, dt)
+
+    def _climb_requested(self, sp: object) -> bool:
+        nav = self.nav
+        if nav.wants_climb:
+            return True
+        if self.mode != FlightMode.OFFBOARD:
+            return False
+        s = nav.sp
+        est = self.est
+        return (
+            (not _isnan(s.vz) and s.vz < -0.3)
+            or (not _isnan(s.pz) and s.pz < est.pd - 0.3)
+            or (not _isnan(s.az) and s.az < -1.0)
+        )
+
+    def _idle_out(self) -> tuple[float, float, float, float]:
+        self._reset_controllers()
+        nav = self.nav
+        nav.tr.reset((self.est.pn, self.est.pe, self.est.pd))
+        self.collective = self._idle
+        i = self._idle
+        return (i, i, i, i)
+
+    def _rates_to_motors(
+        self, rates_sp: tuple[float, float, float], thrust: float, dt: float
+    ) -> tuple[float, float, float, float]:
+        torque = self.rate_ctl.update(
+            rates_sp,
+            self.est.rates,
+            dt,
+            self._sat_pos,
+            self._sat_neg,
+            integrate=self.landed_state != LandedState.ON_GROUND,
+        )
+        self.collective = thrust
+        mix = mix_quad_x(torque[0], torque[1], torque[2], thrust, self._idle)
+        self._sat_pos, self._sat_neg = mix.sat_pos, mix.sat_neg
+        m = mix.motors
+        f = self._fac
+        if f > 0.0:
+            a = 1.0 - f
+            m = tuple((-a + math.sqrt(a * a + 4.0 * f * u)) / (2.0 * f) for u in m)  # type: ignore[assignment]
+        return m
+
+    def _land_detector(self, dt: float) -> None:
+        est = self.est
+        ls = self.landed_state
+        if not self.armed:
+            self.landed_state = LandedState.ON_GROUND
+            self.ground_pd = est.pd
+            self._contact_s = 0.0
+            return
+        if ls == LandedState.ON_GROUND:
+            self._landed_s += dt
+            if self.collective > self._hover * 0.6 and (self.nav.wants_climb or self.mode == FlightMode.OFFBOARD):
+                self.landed_state = LandedState.TAKEOFF
+                self._landed_s = 0.0
+            return
+        height = self.ground_pd - est.pd
+        if ls == LandedState.TAKEOFF:
+            if height > 1.0 or (self.mode == FlightMode.OFFBOARD and height > 0.5):
+                self.landed_state = LandedState.IN_AIR
+            elif self.collective < self._hover * 0.3 and height < 0.2:
+                self.landed_state = LandedState.ON_GROUND
+            return
+        # in air or landing: ground contact = wants down, not moving, thrust well below hover
+        landing = self.nav.landing
+        self.landed_state = LandedState.LANDING if landing else LandedState.IN_AIR
+        wants_down = self.pos_ctl.vel_sp[2] > 0.1 or landing
+        contact = (
+            wants_down
+            and abs(est.vd) < 0.3
+            and math.hypot(est.vn, est.ve) < 1.0
+            and self.collective < self._hover * 0.85
+        )
+        self._contact_s = self._contact_s + dt if contact else 0.0
+        if self._contact_s > 1.0:
+            self.landed_state = LandedState.ON_GROUND
+            self.ground_pd = est.pd
+            self._contact_s = 0.0
+            self._landed_s = 0.0
+            self._text(6, "Landing detected")

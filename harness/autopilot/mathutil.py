@@ -1,0 +1,118 @@
+"""Plain-float quaternion and geodesy helpers for the hot path (numpy on 3-vectors is ~1 µs per op).
+
+Quaternions are (w, x, y, z) tuples rotating body FRD to world NED.
+"""
+
+from __future__ import annotations
+
+import math
+
+from harness.autopilot.api import Quat, Vec3
+
+EARTH_RADIUS_M = 6_371_000.0
+G_M_S2 = 9.80665
+
+
+def quat_mul(a: Quat, b: Quat) -> Quat:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def quat_conj(q: Quat) -> Quat:
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def quat_normalize(q: Quat) -> Quat:
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if n < 1e-12:
+        return (1.0, 0.0, 0.0, 0.0)
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def quat_from_euler(roll: float, pitch: float, yaw: float) -> Quat:
+    cr, sr = math.cos(roll * 0.5), math.sin(roll * 0.5)
+    cp, sp = math.cos(pitch * 0.5), math.sin(pitch * 0.5)
+    cy, sy = math.cos(yaw * 0.5), math.sin(yaw * 0.5)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def quat_to_euler(q: Quat) -> Vec3:
+    w, x, y, z = q
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    s = 2.0 * (w * y - z * x)
+    pitch = math.asin(-1.0 if s < -1.0 else (1.0 if s > 1.0 else s))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return (roll, pitch, yaw)
+
+
+def rotate(q: Quat, v: Vec3) -> Vec3:
+    """Rotate a body vector into the world frame."""
+    w, x, y, z = q
+    vx, vy, vz = v
+    # t = 2 * cross(q.xyz, v); v' = v + w t + cross(q.xyz, t)
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (
+        vx + w * tx + y * tz - z * ty,
+        vy + w * ty + z * tx - x * tz,
+        vz + w * tz + x * ty - y * tx,
+    )
+
+
+def rotate_inv(q: Quat, v: Vec3) -> Vec3:
+    """Rotate a world vector into the body frame."""
+    return rotate((q[0], -q[1], -q[2], -q[3]), v)
+
+
+def wrap_pi(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class GeoRef:
+    """Azimuthal equidistant projection around a reference point (as PX4's map projection)."""
+
+    __slots__ = ("alt_m", "cos_lat", "lat_rad", "lon_rad", "sin_lat")
+
+    def __init__(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> None:
+        self.lat_rad = math.radians(lat_deg)
+        self.lon_rad = math.radians(lon_deg)
+        self.sin_lat = math.sin(self.lat_rad)
+        self.cos_lat = math.cos(self.lat_rad)
+        self.alt_m = alt_amsl_m
+
+    def to_ned(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> Vec3:
+        lat = math.radians(lat_deg)
+        lon = math.radians(lon_deg)
+        sin_lat, cos_lat = math.sin(lat), math.cos(lat)
+        cos_d_lon = math.cos(lon - self.lon_rad)
+        arg = self.sin_lat * sin_lat + self.cos_lat * cos_lat * cos_d_lon
+        arg = -1.0 if arg < -1.0 else (1.0 if arg > 1.0 else arg)
+        c = math.acos(arg)
+        k = c / math.sin(c) if abs(c) > 1e-12 else 1.0
+        north = k * (self.cos_lat * sin_lat - self.sin_lat * cos_lat * cos_d_lon) * EARTH_RADIUS_M
+        east = k * cos_lat * math.sin(lon - self.lon_rad) * EARTH_RADIUS_M
+        return (north, east, self.alt_m - alt_amsl_m)
+
+    def to_geo(self, n: float, e: float, d: float) -> tuple[float, float, float]:
+        x = n / EARTH_RADIUS_M
+        y = e / EARTH_RADIUS_M
+        c = math.sqrt(x * x + y * y)
+        if c > 1e-12:
+            sin_c, cos_c = math.sin(c), math.cos(c)
+            lat = math.asin(cos_c * self.sin_lat + x * sin_c * self.cos_lat / c)
+            lon = self.lon_rad + math.atan2(y * sin_c, c * self.cos_lat * cos_c - x * self.sin_lat * sin_c)
+        else:
+            lat, lon = self.lat_rad, self.lon_rad
+        return (math.degrees(lat), math.degrees(lon), self.alt_m - d)

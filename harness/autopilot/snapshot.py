@@ -1,0 +1,76 @@
+"""Building the frozen ``VehicleState`` snapshot from the live autopilot (called under its lock)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from harness.autopilot.api import FlightMode, GpsInfo, Health, LandedState, MissionProgress, VehicleState
+from harness.autopilot.mathutil import quat_to_euler
+
+if TYPE_CHECKING:
+    from harness.autopilot.autopilot import Autopilot
+
+
+def build_state(ap: Autopilot) -> VehicleState:
+    c = ap.core
+    e = c.est
+    nav = c.nav
+    t = max(c.t_ns, 0)
+    lat, lon, alt = e.geo()
+    roll, pitch, yaw = quat_to_euler(e.q)
+    g = e.gps
+    gps = (
+        GpsInfo(g.fix_type, g.satellites, g.eph_m, g.epv_m, g.lat_deg, g.lon_deg, g.alt_amsl_m, g.vel_ned_m_s)
+        if g is not None
+        else GpsInfo()
+    )
+    fresh = 1_000_000_000
+    imu_ok = c.t_ns >= 0 and t - e.last_imu_ns < fresh
+    health = Health(
+        gyro_ok=imu_ok,
+        accel_ok=imu_ok,
+        mag_ok=t - e.last_mag_ns < 2 * fresh,
+        baro_ok=t - e.last_baro_ns < fresh,
+        gps_ok=e.gps_fix_ok() and e.pos_valid,
+        local_position_ok=e.pos_valid,
+        home_ok=ap.home is not None,
+        preflight_ok=ap.arming_check() == "",
+    )
+    home_pd = ap.home_ned[2] if ap.home_ned is not None else 0.0
+    mode = c.mode
+    return VehicleState(
+        t_ns=t,
+        vehicle=ap.vehicle,
+        armed=c.armed,
+        mode=mode,
+        landed_state=c.landed_state if c.armed else LandedState.ON_GROUND,
+        pos_ned_m=(e.pn, e.pe, e.pd),
+        vel_ned_m_s=(e.vn, e.ve, e.vd),
+        lat_deg=lat,
+        lon_deg=lon,
+        alt_amsl_m=alt,
+        rel_alt_m=home_pd - e.pd,
+        quat=e.q,
+        roll_rad=roll,
+        pitch_rad=pitch,
+        yaw_rad=yaw,
+        rates_body_rad_s=e.rates,
+        accel_body_m_s2=e.accel_body,
+        home=ap.home,
+        home_ned_m=ap.home_ned,
+        battery=c.battery.state(),
+        gps=gps,
+        health=health,
+        mission=MissionProgress(
+            current_seq=min(nav.current, max(len(nav.items) - 1, 0)),
+            count=len(nav.items),
+            reached=tuple(nav.reached),
+            finished=nav.finished,
+            active=mode == FlightMode.MISSION and c.armed,
+        ),
+        offboard_active=mode == FlightMode.OFFBOARD,
+        motors=c.motors,
+        throttle=c.collective,
+        max_speed_m_s=nav.cruise_m_s,
+        failsafe=ap.failsafe,
+    )
