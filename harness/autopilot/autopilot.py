@@ -130,6 +130,9 @@ class Autopilot:
             self._landed_since_ns = None
             if in_air:
                 self._was_airborne = True
+        if c.mode == FlightMode.TAKEOFF and in_air and nav.takeoff_reached():
+            self._say(Severity.INFO, "Takeoff complete")
+            self._set_mode(FlightMode.HOLD)
         if c.mode == FlightMode.MISSION and nav.mission_done:
             nav.mission_done = False
             self._say(Severity.INFO, "Mission finished")

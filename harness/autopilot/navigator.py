@@ -198,7 +198,7 @@ class Navigator:
             v = slow + (fast - slow) * (rel - a2) / (a1 - a2)
         else:
             v = slow
-        self.tr.step(self.target[0], self.target[1], self.tr.z, 1.0, 1.0, 1.0, 1.0, 1.0, dt)
+        self.tr.step(self.target[0], self.target[1], self.tr.z, 1.0, 1.0, 1.0, p["MPC_ACC_HOR"], 1.0, dt)
         self.sp.set((self.tr.x, self.tr.y, NAN), (0.0, 0.0, v), (NAN, NAN, NAN), self.yaw_sp)
 
     # ---------- return ----------
@@ -300,8 +300,9 @@ class Navigator:
                 continue
             break
         if self.current >= len(self.items):
-            self.finished = True
-            self.mission_done = True
+            if not self.finished:
+                self.finished = True
+                self.mission_done = True
             self._track(self.target, dt)
             return
         it = self.items[self.current]
@@ -343,7 +344,7 @@ class Navigator:
             self._track(self.target, dt)
             rad = float(it.param2) if cmd == MavCmd.NAV_WAYPOINT and it.param2 > 0 else p["NAV_ACC_RAD"]
             dh = math.hypot(self.target[0] - e.pn, self.target[1] - e.pe)
-            if dh < rad and abs(self.target[2] - e.pd) < p["NAV_MC_ALT_RAD"]:
+            if dh < rad and abs(self.target[2] - e.pd) < p["NAV_MC_ALT_RAD"] and self._setpoint_arrived():
                 if cmd == MavCmd.NAV_LAND:
                     self.phase = "land"
                     self.landing = True
@@ -374,6 +375,11 @@ class Navigator:
             if done:
                 self.landing = False
                 self._reach()
+
+    def _setpoint_arrived(self) -> bool:
+        """The smooth setpoint has stopped on the target (so a turn starts from rest, without overshoot)."""
+        t = self.tr
+        return abs(t.x - self.target[0]) < 0.05 and abs(t.y - self.target[1]) < 0.05 and abs(t.vx) + abs(t.vy) < 0.05
 
     def _reach(self) -> None:
         seq = self.items[self.current].seq
