@@ -10,7 +10,6 @@ registry's version changes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 from harness.autopilot.api import Quat
 from harness.autopilot.mathutil import G_M_S2
@@ -300,77 +299,81 @@ class RateControl:
     ) -> tuple[float, float, float]:
         if self.params.version != self._ver:
             self._load()
-        out = [0.0, 0.0, 0.0]
-        prev = self.prev
-        i = self.i
-        for k in range(3):
-            e = rates_sp[k] - rates[k]
-            d = (rates[k] - prev[k]) / dt if dt > 0.0 else 0.0
-            out[k] = self.kp[k] * e + i[k] - self.kd[k] * d
-            if integrate and not ((sat_pos[k] and e > 0.0) or (sat_neg[k] and e < 0.0)):
-                v = i[k] + self.ki[k] * e * dt
-                lim = self.ilim[k]
-                i[k] = -lim if v < -lim else (lim if v > lim else v)
+        p0, p1, p2 = rates
+        q0, q1, q2 = self.prev
+        e0, e1, e2 = rates_sp[0] - p0, rates_sp[1] - p1, rates_sp[2] - p2
+        kp, kd, i = self.kp, self.kd, self.i
+        inv = 1.0 / dt if dt > 0.0 else 0.0
+        out = (
+            kp[0] * e0 + i[0] - kd[0] * (p0 - q0) * inv,
+            kp[1] * e1 + i[1] - kd[1] * (p1 - q1) * inv,
+            kp[2] * e2 + i[2] - kd[2] * (p2 - q2) * inv,
+        )
+        if integrate:
+            ki, lim = self.ki, self.ilim
+            for k, e in ((0, e0), (1, e1), (2, e2)):
+                if not ((sat_pos[k] and e > 0.0) or (sat_neg[k] and e < 0.0)):
+                    v = i[k] + ki[k] * e * dt
+                    i[k] = -lim[k] if v < -lim[k] else (lim[k] if v > lim[k] else v)
         self.prev = rates
-        return (out[0], out[1], out[2])
+        return out
 
 
-# PX4 quad-X geometry: (roll, pitch, yaw) coefficient of each motor, index order as the sensor frame says.
-_QUAD_X = (
-    (-0.707107, 0.707107, 1.0),  # 0 front right, CCW
-    (0.707107, -0.707107, 1.0),  # 1 rear left, CCW
-    (0.707107, 0.707107, -1.0),  # 2 front left, CW
-    (-0.707107, -0.707107, -1.0),  # 3 rear right, CW
+# PX4 quad-X geometry, motor order as the sensor frame says: (roll, pitch, yaw) coefficients
+# 0 front right CCW (-r, +p, +y), 1 rear left CCW (+r, -p, +y), 2 front left CW (+r, +p, -y), 3 rear right CW (-r, -p, -y)
+QUAD_X = (
+    (-0.707107, 0.707107, 1.0),
+    (0.707107, -0.707107, 1.0),
+    (0.707107, 0.707107, -1.0),
+    (-0.707107, -0.707107, -1.0),
 )
+_K = 0.707107
+
+Sat = tuple[bool, bool, bool]
 
 
-@dataclass(slots=True)
-class MixerResult:
-    motors: tuple[float, float, float, float]
-    sat_pos: tuple[bool, bool, bool]
-    """Per axis (roll, pitch, yaw): more positive torque was asked than could be given."""
-    sat_neg: tuple[bool, bool, bool]
-
-
-def mix_quad_x(roll: float, pitch: float, yaw: float, thrust: float, idle: float = 0.0) -> MixerResult:
+def mix_quad_x(
+    roll: float, pitch: float, yaw: float, thrust: float, idle: float = 0.0
+) -> tuple[tuple[float, float, float, float], Sat, Sat]:
     """Quad-X mixer with saturation handling: roll/pitch first (thrust shifted, then scaled), yaw last.
 
-    Outputs are in [idle, 1]. Yaw is reduced to the room roll/pitch and thrust leave ("yaw gives way").
+    Returns (motors in [idle, 1], saturated-positive per axis, saturated-negative per axis); a saturated
+    axis asked for more torque than it got (the rate integrators stop growing that way). Yaw gets only the
+    room that roll, pitch and thrust leave ("yaw gives way first").
     """
-    g = _QUAD_X
-    m = [thrust + g[i][0] * roll + g[i][1] * pitch for i in range(4)]
-    lo, hi = min(m), max(m)
-    rp_sat = False
-    span = hi - lo
-    if span > 1.0 - idle:
-        # even at best thrust the roll/pitch demand does not fit: scale it down
-        s = (1.0 - idle) / span
-        roll *= s
-        pitch *= s
-        rp_sat = True
-        m = [thrust + g[i][0] * roll + g[i][1] * pitch for i in range(4)]
-        lo, hi = min(m), max(m)
+    a = _K * (pitch - roll)  # motor 0 and, negated, motor 1
+    b = _K * (pitch + roll)  # motor 2 and, negated, motor 3
+    m0, m1, m2, m3 = thrust + a, thrust - a, thrust + b, thrust - b
+    span = 2.0 * max(abs(a), abs(b))
+    room = 1.0 - idle
+    rp_sat = span > room
+    if rp_sat:
+        k = room / span
+        roll *= k
+        pitch *= k
+        a *= k
+        b *= k
+        m0, m1, m2, m3 = thrust + a, thrust - a, thrust + b, thrust - b
+    hi = max(m0, m1, m2, m3)
+    lo = min(m0, m1, m2, m3)
     if hi > 1.0:
-        shift = hi - 1.0
-        m = [v - shift for v in m]
+        d = hi - 1.0
+        m0, m1, m2, m3 = m0 - d, m1 - d, m2 - d, m3 - d
     elif lo < idle:
-        shift = idle - lo
-        m = [v + shift for v in m]
-    # yaw: the range of yaw that keeps every motor in [idle, 1]
-    ymax, ymin = math.inf, -math.inf
-    for i in range(4):
-        c = g[i][2]
-        up, dn = (1.0 - m[i]) / c, (idle - m[i]) / c
-        if c > 0:
-            ymax, ymin = min(ymax, up), max(ymin, dn)
-        else:
-            ymax, ymin = min(ymax, dn), max(ymin, up)
-    y = min(max(yaw, ymin), ymax) if ymin <= ymax else 0.0
-    yaw_sat_pos = yaw > y + 1e-9
-    yaw_sat_neg = yaw < y - 1e-9
-    out = tuple(min(max(m[i] + g[i][2] * y, 0.0), 1.0) for i in range(4))
-    return MixerResult(
-        (out[0], out[1], out[2], out[3]),
-        (rp_sat and roll > 0, rp_sat and pitch > 0, yaw_sat_pos),
-        (rp_sat and roll < 0, rp_sat and pitch < 0, yaw_sat_neg),
+        d = idle - lo
+        m0, m1, m2, m3 = m0 + d, m1 + d, m2 + d, m3 + d
+    # yaw: +y on motors 0, 1 and -y on motors 2, 3 must keep all four in [idle, 1]
+    ymax = min(1.0 - m0, 1.0 - m1, m2 - idle, m3 - idle)
+    ymin = max(idle - m0, idle - m1, m2 - 1.0, m3 - 1.0)
+    y = (ymin if yaw < ymin else (ymax if yaw > ymax else yaw)) if ymin <= ymax else 0.0
+    m0, m1, m2, m3 = m0 + y, m1 + y, m2 - y, m3 - y
+    return (
+        (
+            0.0 if m0 < 0.0 else (1.0 if m0 > 1.0 else m0),
+            0.0 if m1 < 0.0 else (1.0 if m1 > 1.0 else m1),
+            0.0 if m2 < 0.0 else (1.0 if m2 > 1.0 else m2),
+            0.0 if m3 < 0.0 else (1.0 if m3 > 1.0 else m3),
+        ),
+        (rp_sat and roll > 0.0, rp_sat and pitch > 0.0, yaw > y + 1e-9),
+        (rp_sat and roll < 0.0, rp_sat and pitch < 0.0, yaw < y - 1e-9),
     )

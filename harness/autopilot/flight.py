@@ -51,6 +51,14 @@ class FlightCore:
         self._landed_s = 0.0
         self._sat_pos = (False, False, False)
         self._sat_neg = (False, False, False)
+        self._bat_dt = 0.0
+        self.pos_every = 2
+        """Navigator and position control run every ``pos_every`` ticks (125 Hz at a 250 Hz tick)."""
+        self._pos_n = 0
+        self._pos_dt = 0.0
+        self._qd: tuple[float, float, float, float] | None = None
+        self._coll = 0.0
+        self._yaw_ff = 0.0
         self._ver = -1
         self._load()
 
@@ -72,7 +80,10 @@ class FlightCore:
             dt = 0.004 if dt <= 0.0 else 0.05
         self.t_ns = frame.t_ns
         self.est.update(frame, dt)
-        self.battery.update(self.motors, self.armed, dt)
+        self._bat_dt += dt
+        if self._bat_dt >= 0.04:
+            self.battery.update(self.motors, self.armed, self._bat_dt)
+            self._bat_dt = 0.0
         motors = self._control(dt)
         self._land_detector(dt)
         self.motors = motors
@@ -107,23 +118,31 @@ class FlightCore:
                     rates_sp[2] + att.body_rates_rad_s[2],
                 )
             return self._rates_to_motors(rates_sp, att.thrust, dt)
-        sp = nav.update(dt, on_ground)
-        if on_ground and not self._climb_requested(sp):
-            return self._idle_out()
-        if on_ground:
-            # leaving the ground: no horizontal integrator from the time on the ground
-            self.pos_ctl.ix = self.pos_ctl.iy = 0.0
-        thr = self.pos_ctl.update(sp, (est.pn, est.pe, est.pd), (est.vn, est.ve, est.vd), dt)
-        yaw_rate_ff = 0.0
-        if not _isnan(sp.yaw):
-            self.yaw_hold = sp.yaw
-        if not _isnan(sp.yaw_rate):
-            yaw_rate_ff = sp.yaw_rate
-            if _isnan(sp.yaw):
-                self.yaw_hold = math.remainder(self.yaw_hold + sp.yaw_rate * dt, 2.0 * math.pi)
-        qd, coll = thrust_to_attitude(thr, self.yaw_hold)
-        rates_sp = self.att_ctl.update(est.q, qd, yaw_rate_ff)
-        return self._rates_to_motors(rates_sp, coll, dt)
+        self._pos_dt += dt
+        self._pos_n += 1
+        if self._pos_n >= self.pos_every or on_ground or self._qd is None:
+            # outer loop (navigator + position control) at tick rate / pos_every
+            pdt = self._pos_dt
+            self._pos_n = 0
+            self._pos_dt = 0.0
+            sp = nav.update(pdt, on_ground)
+            if on_ground and not self._climb_requested(sp):
+                self._qd = None
+                return self._idle_out()
+            if on_ground:
+                # leaving the ground: no horizontal integrator from the time on the ground
+                self.pos_ctl.ix = self.pos_ctl.iy = 0.0
+            thr = self.pos_ctl.update(sp, (est.pn, est.pe, est.pd), (est.vn, est.ve, est.vd), pdt)
+            self._yaw_ff = 0.0
+            if not _isnan(sp.yaw):
+                self.yaw_hold = sp.yaw
+            if not _isnan(sp.yaw_rate):
+                self._yaw_ff = sp.yaw_rate
+                if _isnan(sp.yaw):
+                    self.yaw_hold = math.remainder(self.yaw_hold + sp.yaw_rate * pdt, 2.0 * math.pi)
+            self._qd, self._coll = thrust_to_attitude(thr, self.yaw_hold)
+        rates_sp = self.att_ctl.update(est.q, self._qd, self._yaw_ff)
+        return self._rates_to_motors(rates_sp, self._coll, dt)
 
     def _climb_requested(self, sp: object) -> bool:
         nav = self.nav
@@ -159,9 +178,7 @@ class FlightCore:
             integrate=self.landed_state != LandedState.ON_GROUND,
         )
         self.collective = thrust
-        mix = mix_quad_x(torque[0], torque[1], torque[2], thrust, self._idle)
-        self._sat_pos, self._sat_neg = mix.sat_pos, mix.sat_neg
-        m = mix.motors
+        m, self._sat_pos, self._sat_neg = mix_quad_x(torque[0], torque[1], torque[2], thrust, self._idle)
         f = self._fac
         if f > 0.0:
             a = 1.0 - f

@@ -4,8 +4,6 @@ autopilot (sign conventions, mode logic) independent of the JSBSim FDM. Acceptan
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from harness.autopilot.mathutil import GeoRef, quat_mul, quat_normalize, rotate, rotate_inv
