@@ -48,7 +48,7 @@ def test_mixer_yaw_gives_way_first() -> None:
 def test_mixer_outputs_in_range_and_keep_sign(roll: float, pitch: float, yaw: float, thr: float, idle: float) -> None:
     m, _, _ = mix_quad_x(roll, pitch, yaw, thr, idle)
     assert all(idle - 1e-9 <= v <= 1.0 + 1e-9 for v in m)
-    r, p, _, _ = _torques(m)
+    r, _, _, _ = _torques(m)
     if abs(roll) > 1e-6 and abs(pitch) < 1e-9:
         assert r * roll >= -1e-9
 
