@@ -757,6 +757,14 @@ class Channel:
         if self.config.trace:
             self.trace.append((real_monotonic_ns(), event, self._tick, peer.name if peer else ""))
 
+    def subscribers(self) -> list[tuple[str, str]]:
+        """(name, kind) of every admitted peer below this channel (safe to call from another thread)."""
+        return [
+            (peer.name, peer.kind.name)
+            for peer in list(self._peers.values())
+            if peer.kind is not None and peer.admitted and not peer.upstream
+        ]
+
     def raise_if_failed(self) -> None:
         if self.failure:
             raise SimulationError(self.failure)

@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from itertools import islice
 from typing import Any
 
-from harness.simclock.clock import NS_PER_S
+from harness.simclock.clock import NS_PER_S, real_monotonic_ns
 from harness.simclock.runtime import SimRuntime, Waiter, set_current
 
 _originals: dict[tuple[object, str], Any] = {}
@@ -73,9 +73,14 @@ def install(rt: SimRuntime) -> None:
         "sleep": sim_sleep,
     }.items():
         _set(time, name, fn)
-    # modules that captured a time function at import
-    _set(threading, "_time", sim_mono)
-    _set(_queue, "time", sim_mono)
+
+    def wait_clock() -> float:
+        # the clock of timed waits: sim time where waits are sim-time waits, real time elsewhere
+        return rt.now_ns() / NS_PER_S if rt._tracked() else real_monotonic_ns() / NS_PER_S
+
+    # modules that captured a time function at import, for their timed waits
+    _set(threading, "_time", wait_clock)
+    _set(_queue, "time", wait_clock)
 
     _set(_dt, "datetime", _make_datetime(rt))
     _set(_dt, "date", _make_date(rt))

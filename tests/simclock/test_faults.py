@@ -1,0 +1,174 @@
+"""Acceptance: a dead, stalled, deaf or garbage-sending subscriber never hangs the run."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import threading
+import time
+
+import pytest
+
+from harness.errors import ScenarioError, SimulationError
+from harness.simclock import protocol as p
+from harness.simclock.channel import Channel, ChannelConfig
+from harness.simclock.client import ChannelClient, ChannelClosed
+from harness.simclock.drivers import run_fake_physics
+
+from .conftest import Procs, load, wait_until
+
+
+def physics_in_thread(address: str, ticks: int, **kw: object) -> tuple[threading.Thread, dict[str, object]]:
+    out: dict[str, object] = {}
+
+    def run() -> None:
+        try:
+            out["stats"] = run_fake_physics(address, 1, ticks, **kw)  # type: ignore[arg-type]
+        except Exception as exc:
+            out["error"] = exc
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th, out
+
+
+def test_kill_9_of_type0_is_reported_and_run_goes_on(procs: Procs) -> None:
+    ch = Channel(ChannelConfig(stall_timeout_s=2)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        victim, _ = procs.driver("type0", ch.address, "--vehicle", "0", name="victim")
+        _, survivor = procs.driver("type0", ch.address, "--vehicle", "0", name="survivor")
+        wait_until(lambda: len(ch.subscribers()) == 3)
+        th, out = physics_in_thread(ch.address, 3000, speed=10.0)  # 12 s of sim time in 1.2 s
+        wait_until(lambda: ch.ticks_done > 200, what="200 ticks")
+        killed_at = time.monotonic()
+        os.kill(victim.pid, signal.SIGKILL)
+        wait_until(lambda: ch.faults, timeout_s=2, what="the fault report")
+        assert time.monotonic() - killed_at < 2.0  # within the watchdog limit
+        th.join(30)
+        assert "error" not in out and out["stats"].ticks == 3000  # type: ignore[attr-defined]
+        (fault,) = ch.faults
+        assert fault.peer == "victim" and fault.kind == "TYPE0" and not fault.fatal
+        assert "disconnected" in fault.reason or "broke" in fault.reason
+        assert any(e.peer == "victim" and e.exit_code == -1 for e in ch.mission_exits)
+        # the survivor kept running to the end
+        procs.wait_all()
+        work = [ev for ev in load(survivor) if ev["ev"] == "work0"]
+        assert work[-1]["tick"] == 2999
+    finally:
+        ch.stop()
+
+
+def test_stalled_type0_is_dropped_after_the_limit(procs: Procs) -> None:
+    ch = Channel(ChannelConfig(stall_timeout_s=0.5, phase_every=5)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        procs.driver("type0", ch.address, "--vehicle", "0", "--stall-at-tick", "50", name="sleepy")
+        wait_until(lambda: len(ch.subscribers()) == 2)
+        start = time.monotonic()
+        stats = run_fake_physics(ch.address, 1, 200)
+        assert stats.ticks == 200
+        assert 0.5 <= time.monotonic() - start < 5
+        (fault,) = ch.faults
+        assert fault.peer == "sleepy" and "stalled" in fault.reason and "END-TICK-0 of tick 50" in fault.reason
+    finally:
+        ch.stop()
+
+
+def test_type1_that_never_answers_fails_the_run_with_its_name(procs: Procs) -> None:
+    ch = Channel(ChannelConfig(stall_timeout_s=1.0)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        procs.driver("type1", ch.address, "--never-answer", name="deaf-net")
+        wait_until(lambda: len(ch.subscribers()) == 2)
+        start = time.monotonic()
+        with pytest.raises(ChannelClosed, match="deaf-net.*stalled"):
+            run_fake_physics(ch.address, 1, 100)
+        assert time.monotonic() - start < 3
+        assert ch.wait(5) and ch.failure is not None and "deaf-net" in ch.failure
+    finally:
+        ch.stop()
+
+
+def test_type1_fault_can_drop_instead(procs: Procs) -> None:
+    ch = Channel(ChannelConfig(stall_timeout_s=0.5, type1_fault="drop")).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        procs.driver("type1", ch.address, "--never-answer", name="deaf-net")
+        wait_until(lambda: len(ch.subscribers()) == 2)
+        assert run_fake_physics(ch.address, 1, 100).ticks == 100
+        assert [f.peer for f in ch.faults] == ["deaf-net"]
+    finally:
+        ch.stop()
+
+
+@pytest.mark.parametrize("after_handshake", [False, True])
+def test_garbage_sender_is_dropped(procs: Procs, after_handshake: bool) -> None:
+    ch = Channel(ChannelConfig(stall_timeout_s=2)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        _, good = procs.driver("type0", ch.address, "--vehicle", "0", name="good")
+        wait_until(lambda: len(ch.subscribers()) == 2)
+        if after_handshake:
+            client = ChannelClient.connect(ch.address, p.PeerKind.TYPE0, "garbler", vehicle=0)
+            sock = client.sock
+            wait_until(lambda: len(ch.subscribers()) == 3)
+        else:
+            host, port = ch.address.removeprefix("tcp://").rsplit(":", 1)
+            sock = socket.create_connection((host, int(port)))
+        th, out = physics_in_thread(ch.address, 500)
+        sock.sendall(b"\x00\x00\x00\x10" + os.urandom(16) + b"\xff" * 64)
+        th.join(20)
+        assert "error" not in out, out
+        wait_until(lambda: ch.faults, timeout_s=3)
+        sock.close()
+        procs.wait_all()
+        fault = ch.faults[0]
+        assert ("malformed" in fault.reason) or ("HELLO" in fault.reason)
+        assert (fault.peer == "garbler") == after_handshake
+        assert [ev["tick"] for ev in load(good) if ev["ev"] == "work0"][-1] == 499
+    finally:
+        ch.stop()
+
+
+def test_late_joiner_is_admitted_between_ticks(procs: Procs) -> None:
+    ch = Channel(ChannelConfig(stall_timeout_s=5, trace=True)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        wait_until(lambda: len(ch.subscribers()) == 1)
+        th, out = physics_in_thread(ch.address, 2000, speed=5.0)
+        wait_until(lambda: ch.ticks_done > 100)
+        _, late = procs.driver("type0", ch.address, "--vehicle", "0", name="late")
+        th.join(30)
+        procs.wait_all()
+        ticks = [ev["tick"] for ev in load(late) if ev["ev"] == "work0"]
+        assert ticks and ticks[0] > 100
+        assert ticks == list(range(ticks[0], 2000)), "from its first tick on, it took part in every phase 0"
+    finally:
+        ch.stop()
+
+
+def test_missing_autopilot_fails_with_a_message() -> None:
+    ch = Channel(ChannelConfig(join_timeout_s=0.5)).start()
+    try:
+        with pytest.raises(ChannelClosed, match=r"no autopilot joined for vehicles \[0\]"):
+            run_fake_physics(ch.address, 1, 10)
+    finally:
+        ch.stop()
+
+
+def test_secret_required_off_loopback_and_checked() -> None:
+    with pytest.raises(ScenarioError, match="requires a shared secret"):
+        ChannelConfig(address="tcp://0.0.0.0:0")
+    ch = Channel(ChannelConfig(secret=b"s3cret")).start()
+    try:
+        with pytest.raises(SimulationError, match="did not prove the shared secret"):
+            ChannelClient.connect(ch.address, p.PeerKind.TYPE0, "intruder", secret=b"wrong")
+        with pytest.raises(SimulationError, match="did not prove the shared secret"):
+            ChannelClient.connect(ch.address, p.PeerKind.TYPE0, "intruder")
+        ok = ChannelClient.connect(ch.address, p.PeerKind.TYPE0, "friend", secret=b"s3cret")
+        assert ok.welcome.peer_id > 0
+        ok.close()
+    finally:
+        ch.stop()

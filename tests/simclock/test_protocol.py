@@ -1,0 +1,89 @@
+"""The codec: every message round-trips; garbage is refused with ProtocolError, never anything else."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from harness.simclock import protocol as p
+
+i64 = st.integers(min_value=0, max_value=2**62)
+veh = st.integers(min_value=-1, max_value=10_000)
+flt = st.floats(allow_nan=False, allow_infinity=False, width=64)
+vec3 = st.tuples(flt, flt, flt)
+packet = st.builds(p.Packet, i64, veh, veh, st.integers(0, 65535), i64, st.binary(max_size=64))
+
+messages = st.one_of(
+    st.builds(p.Challenge, st.integers(0, 10), st.binary(min_size=16, max_size=16)),
+    st.builds(
+        p.Hello,
+        st.integers(0, 10),
+        st.sampled_from(list(p.PeerKind)),
+        st.text(max_size=20),
+        veh,
+        st.lists(veh, max_size=5).map(tuple),
+        st.binary(max_size=32),
+    ),
+    st.builds(p.Welcome, i64, i64, i64),
+    st.builds(p.BeginTickAC, i64, i64, veh, st.integers(1, 100), vec3, st.binary(max_size=300)),
+    st.builds(p.EndTickAC, i64, veh, st.lists(flt, min_size=4, max_size=4).map(tuple)),
+    st.builds(p.BeginTick0, i64, i64),
+    st.builds(p.EndTick0, i64),
+    st.builds(p.Enqueue, packet),
+    st.builds(
+        p.BeginTick1,
+        i64,
+        i64,
+        i64,
+        st.lists(st.builds(p.VehiclePosition, veh, vec3), max_size=4).map(tuple),
+        st.lists(packet, max_size=4).map(tuple),
+    ),
+    st.builds(p.Deliver, i64, packet, flt),
+    st.builds(p.EndTick1, i64),
+    st.builds(p.Bye, st.text(max_size=20), st.integers(-255, 255)),
+    st.builds(p.Error, st.sampled_from(list(p.ErrorCode)), st.text(max_size=40), st.booleans()),
+)
+
+
+@given(st.lists(messages, min_size=1, max_size=8), st.integers(1, 64))
+@settings(max_examples=300, deadline=None)
+def test_round_trip_in_any_chunking(msgs: list[p.Message], chunk: int) -> None:
+    data = p.encode_many(msgs)
+    dec = p.FrameDecoder()
+    out: list[p.Message] = []
+    for i in range(0, len(data), chunk):
+        out += dec.feed(data[i : i + chunk])
+    assert out == msgs and dec.pending == 0
+
+
+@given(st.binary(min_size=1, max_size=200))
+@settings(max_examples=500, deadline=None)
+def test_garbage_raises_protocol_error_only(data: bytes) -> None:
+    dec = p.FrameDecoder(max_frame=1024)
+    try:
+        for msg in dec.feed(data):
+            assert isinstance(msg, p._Msg)
+    except p.ProtocolError:
+        pass
+
+
+def test_oversized_length_prefix_is_refused_without_allocating() -> None:
+    with pytest.raises(p.ProtocolError, match="exceeds the limit"):
+        p.FrameDecoder().feed(b"\xff\xff\xff\xff" + b"x" * 10)
+
+
+def test_wrong_field_type_is_malformed() -> None:
+    import msgspec
+
+    body = msgspec.msgpack.encode(["ET0", "not-an-int"])
+    with pytest.raises(p.ProtocolError, match="malformed"):
+        p.FrameDecoder().feed(len(body).to_bytes(4, "big") + body)
+
+
+def test_auth_token_binds_nonce_and_name() -> None:
+    t = p.auth_token(b"k", b"n" * 16, "a")
+    assert p.check_auth(b"k", b"n" * 16, "a", t)
+    assert not p.check_auth(b"k", b"m" * 16, "a", t)
+    assert not p.check_auth(b"k", b"n" * 16, "b", t)
+    assert not p.check_auth(b"x", b"n" * 16, "a", t)

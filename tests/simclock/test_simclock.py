@@ -1,0 +1,118 @@
+"""Acceptance: unmodified scripts on the sim clock, as real `harness mission` processes."""
+
+from __future__ import annotations
+
+import asyncio
+import datetime
+import json
+import queue
+import threading
+import time
+
+import pytest
+
+from harness.simclock import patch
+from harness.simclock.channel import Channel, ChannelConfig
+from harness.simclock.drivers import run_fake_physics
+from harness.simclock.runtime import SimRuntime
+
+from .conftest import Procs, wait_until
+
+TICK_HZ = 250.0
+PHASE_EVERY = 5
+PHASE_PERIOD_S = PHASE_EVERY / TICK_HZ
+
+
+def run_missions(
+    procs: Procs, scripts: list[list[str]], sim_s: float, speed: float | None
+) -> list[tuple[int, str, str]]:
+    ch = Channel(ChannelConfig(stall_timeout_s=30, phase_every=PHASE_EVERY, tick_hz=TICK_HZ)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        missions = [procs.mission(ch.address, *s) for s in scripts]
+        wait_until(lambda: len(ch.subscribers()) == 1 + len(scripts), what="missions joined")
+        run_fake_physics(ch.address, 1, int(sim_s * TICK_HZ), tick_hz=TICK_HZ, speed=speed)
+        out = []
+        for m in missions:
+            stdout, stderr = m.communicate(timeout=30)
+            out.append((m.returncode, stdout, stderr))
+        return out
+    finally:
+        ch.stop()
+
+
+@pytest.mark.parametrize("speed", [0.5, 1.0, 50.0])
+def test_sleep_takes_sim_time_at_any_speed(procs: Procs, speed: float) -> None:
+    wall = time.monotonic()
+    (code_s, out_s, err_s), (code_a, out_a, err_a) = run_missions(
+        procs, [["sleep_sync.py"], ["sleep_async.py"]], sim_s=5.6, speed=speed
+    )
+    wall = time.monotonic() - wall
+    assert code_s == 0, err_s
+    assert code_a == 0, err_a
+    sync, asy = json.loads(out_s), json.loads(out_a)
+    for value in [*sync.values(), *asy.values()]:
+        assert value == pytest.approx(5.0, abs=PHASE_PERIOD_S)
+    # and the wall time followed the speed of the clock, not the script's 5 s
+    assert wall >= 5.0 / speed * 0.9
+
+
+def test_time_moves_only_with_ticks(procs: Procs) -> None:
+    ((code, out, err),) = run_missions(procs, [["time_only_with_ticks.py"]], sim_s=1, speed=None)
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["during_work"] == 0.0
+    assert r["after_sleep"] == pytest.approx(PHASE_PERIOD_S, abs=1e-6)  # woken at the next phase 0
+
+
+def test_real_io_under_the_patched_loop(procs: Procs) -> None:
+    ((code, out, err),) = run_missions(procs, [["udp_echo.py"]], sim_s=6, speed=None)
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["replies"] == [f"ping {i}" for i in range(20)]
+    assert r["timed_out"] is True
+    assert r["waited"] == pytest.approx(3.0, abs=PHASE_PERIOD_S)
+
+
+def test_threads_new_loops_and_threading_waits(procs: Procs) -> None:
+    ((code, out, err),) = run_missions(procs, [["threads_loop.py"]], sim_s=5, speed=None)
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["thread_sleep"] == pytest.approx(2.0, abs=PHASE_PERIOD_S)
+    assert r["new_loop_sleep"] == pytest.approx(3.0, abs=PHASE_PERIOD_S)
+    assert r["event_set"] is False and r["event_wait"] == pytest.approx(1.5, abs=PHASE_PERIOD_S)
+    assert r["queue_timeout"] == pytest.approx(0.5, abs=PHASE_PERIOD_S)
+
+
+def test_exit_codes_and_exceptions_are_reported(procs: Procs) -> None:
+    start = time.monotonic()
+    results = run_missions(procs, [["raises_with_thread.py"], ["exits_3.py"]], sim_s=1, speed=None)
+    (code_r, _, err_r), (code_3, _, _) = results
+    assert code_r == 1 and "mission failed on purpose" in err_r  # ended despite its stuck thread
+    assert code_3 == 3
+    assert time.monotonic() - start < 20
+
+
+def test_patching_is_reversible_and_idempotent() -> None:
+    originals = (time.time, time.monotonic, time.sleep, datetime.datetime, threading.Condition.wait)
+    policy = asyncio.get_event_loop_policy()
+    rt = SimRuntime(epoch_ns=1_700_000_000 * 10**9, phase_period_ns=20_000_000)
+    patch.install(rt)
+    patch.install(rt)
+    try:
+        assert time.time() == 1_700_000_000.0 and time.monotonic() == 0.0 and time.perf_counter_ns() == 0
+        assert datetime.datetime.now().timestamp() == 1_700_000_000.0
+        assert "time.sleep" in patch.patched_names() and "threading._time" in patch.patched_names()
+        loop = asyncio.new_event_loop()
+        assert loop.time() == 0.0
+        loop.close()
+        # threads of the harness itself (and anything before the first phase) keep real waits
+        q: queue.Queue[int] = queue.Queue()
+        with pytest.raises(queue.Empty):
+            q.get(timeout=0.01)
+    finally:
+        patch.uninstall()
+        patch.uninstall()
+    assert (time.time, time.monotonic, time.sleep, datetime.datetime, threading.Condition.wait) == originals
+    assert asyncio.get_event_loop_policy() is policy
+    assert abs(time.time() - datetime.datetime.now().timestamp()) < 1
