@@ -114,3 +114,31 @@ def run_autopilots(
             with contextlib.suppress(Exception):
                 h.close()
     return aps
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m harness.autopilot.host --address tcp://… --vehicles 0,1`` (one SITL-like process)."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="harness-autopilot", description=main.__doc__)
+    ap.add_argument("--address", required=True, help="channel address, e.g. tcp://127.0.0.1:5760")
+    ap.add_argument("--vehicles", required=True, help="comma-separated vehicle indices this process flies")
+    ap.add_argument("--name", default=None)
+    ap.add_argument("--ground-truth", action="store_true", help="debug: estimator replaced by ground truth")
+    args = ap.parse_args(argv)
+    try:
+        vehicles = [int(v) for v in args.vehicles.split(",") if v.strip()]
+    except ValueError:
+        raise ScenarioError(f"--vehicles must be comma-separated integers, got {args.vehicles!r}") from None
+    logging.basicConfig(level=logging.INFO)
+    run_autopilots(
+        args.address,
+        vehicles,
+        config_for=lambda v: AutopilotConfig(vehicle=v, use_ground_truth=args.ground_truth),
+        name=args.name,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -83,7 +83,7 @@ def test_type1_that_never_answers_fails_the_run_with_its_name(procs: Procs) -> N
         procs.driver("type1", ch.address, "--never-answer", name="deaf-net")
         wait_until(lambda: len(ch.subscribers()) == 2)
         start = time.monotonic()
-        with pytest.raises(ChannelClosed, match="deaf-net.*stalled"):
+        with pytest.raises(ChannelClosed, match=r"deaf-net.*stalled"):
             run_fake_physics(ch.address, 1, 100)
         assert time.monotonic() - start < 3
         assert ch.wait(5) and ch.failure is not None and "deaf-net" in ch.failure
@@ -138,6 +138,7 @@ def test_late_joiner_is_admitted_between_ticks(procs: Procs) -> None:
         procs.driver("autopilot", ch.address, "--vehicle", "0")
         wait_until(lambda: len(ch.subscribers()) == 1)
         th, out = physics_in_thread(ch.address, 2000, speed=5.0)
+        assert "error" not in out
         wait_until(lambda: ch.ticks_done > 100)
         _, late = procs.driver("type0", ch.address, "--vehicle", "0", name="late")
         th.join(30)
