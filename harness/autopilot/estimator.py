@@ -56,6 +56,7 @@ class Estimator:
         self._gps_vel_prev: tuple[int, float, float, float] | None = None
         self._truth0: tuple[float, float, float] | None = None
         self._t_ns = 0
+        self._mag_err = 0.0
         self._ver = -1
         self._load()
 
@@ -156,17 +157,18 @@ class Estimator:
         if mag is not None:
             self.last_mag_ns = frame.t_ns
             bx, by, bz = mag.field_body_gauss
-            # field in world: R m
+            # field in world: R m; its heading error is held until the next sample (mag is slower than the tick)
             wn = (1 - 2 * (y * y + z * z)) * bx + 2 * (x * y - w * z) * by + 2 * (x * z + w * y) * bz
             we = 2 * (x * y + w * z) * bx + (1 - 2 * (x * x + z * z)) * by + 2 * (y * z - w * x) * bz
             if wn * wn + we * we > 1e-6:
                 err = math.atan2(we, wn) - self._decl
-                err = (err + math.pi) % (2.0 * math.pi) - math.pi
-                # world-z correction -k*err, into body: R^T (0, 0, 1)
-                c = -self._w_mag * err
-                ex += c * 2 * (x * z - w * y)
-                ey += c * 2 * (y * z + w * x)
-                ez += c * (1 - 2 * (x * x + y * y))
+                self._mag_err = (err + math.pi) % (2.0 * math.pi) - math.pi
+        if self._t_ns - self.last_mag_ns < 500_000_000:
+            # world-z correction -k*err, into body: R^T (0, 0, 1)
+            c = -self._w_mag * self._mag_err
+            ex += c * 2 * (x * z - w * y)
+            ey += c * 2 * (y * z + w * x)
+            ez += c * (1 - 2 * (x * x + y * y))
         kb = self._w_bias * dt
         b[0] -= kb * ex
         b[1] -= kb * ey

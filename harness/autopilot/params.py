@@ -47,9 +47,9 @@ _D = math.radians
 
 PARAM_DEFS: tuple[ParamDef, ...] = (
     # Attitude estimator (PX4 attitude_estimator_q names)
-    _f("ATT_W_ACC", 0.2, 0.0, 1.0, "", "Complementary filter weight of the accelerometer"),
-    _f("ATT_W_MAG", 0.1, 0.0, 1.0, "", "Complementary filter weight of the magnetometer"),
-    _f("ATT_W_GYRO_BIAS", 0.05, 0.0, 1.0, "", "Gyro bias learning weight"),
+    _f("ATT_W_ACC", 0.3, 0.0, 1.0, "", "Complementary filter weight of the accelerometer"),
+    _f("ATT_W_MAG", 0.3, 0.0, 1.0, "", "Complementary filter weight of the magnetometer"),
+    _f("ATT_W_GYRO_BIAS", 0.1, 0.0, 1.0, "", "Gyro bias learning weight"),
     # Position estimator gains (PX4 has no equivalent for a complementary filter; EKF2_* noise names used)
     _f("EKF2_GPS_P_NOISE", 0.5, 0.01, 10.0, "m", "GPS position noise (sets the position fusion gain)"),
     _f("EKF2_GPS_V_NOISE", 0.3, 0.01, 5.0, "m/s", "GPS velocity noise (sets the velocity fusion gain)"),
