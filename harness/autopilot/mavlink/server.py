@@ -1,0 +1,364 @@
+"""The MAVLink server of one vehicle: a thread on the wall clock around the pure services.
+
+It never waits for the simulation: it reads the autopilot through its thread-safe API (``state()`` is a
+snapshot of the last tick), answers within milliseconds, sends heartbeats at >= 1 Hz of wall time while
+the simulation is paused or slow, and streams telemetry at the faster of the sim and the wall rate.
+Bad input is counted, logged at debug level, and never stops the thread.
+
+    server = MavlinkServer(autopilot, vehicle=0, ports=PortsConfig(...), signing=None)
+    server.start() ... server.counters() ... server.stop()
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import select
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from harness.autopilot.api import AutopilotApi, FlightMode, GeoPoint, Result, Severity, VehicleState
+from harness.autopilot.mavlink.codec import Codec, FrameStatus, SigningConfig
+from harness.autopilot.mavlink.commands import CommandIn, CommandService
+from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule, heartbeat_message
+from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, statustext
+from harness.autopilot.mavlink.mission import MissionService, ProgressTracker
+from harness.autopilot.mavlink.offboard import handle_setpoint
+from harness.autopilot.mavlink.parameters import ParamService
+from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
+from harness.autopilot.mavlink.transport import PortsConfig, UdpLink
+from harness.autopilot.mavlink.version import autopilot_version
+from harness.simclock.clock import real_monotonic_ns, real_time_ns
+
+log = logging.getLogger(__name__)
+
+_M = mavlink2
+_PARAM_IDS = {_M.MAVLINK_MSG_ID_PARAM_REQUEST_LIST, _M.MAVLINK_MSG_ID_PARAM_REQUEST_READ, _M.MAVLINK_MSG_ID_PARAM_SET}
+_MISSION_IDS = {
+    _M.MAVLINK_MSG_ID_MISSION_COUNT,
+    _M.MAVLINK_MSG_ID_MISSION_ITEM_INT,
+    _M.MAVLINK_MSG_ID_MISSION_ITEM,
+    _M.MAVLINK_MSG_ID_MISSION_REQUEST_LIST,
+    _M.MAVLINK_MSG_ID_MISSION_REQUEST_INT,
+    _M.MAVLINK_MSG_ID_MISSION_REQUEST,
+    _M.MAVLINK_MSG_ID_MISSION_ACK,
+    _M.MAVLINK_MSG_ID_MISSION_CLEAR_ALL,
+    _M.MAVLINK_MSG_ID_MISSION_SET_CURRENT,
+}
+_SETPOINT_IDS = {_M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED, _M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET}
+_TEXT_REPEAT_NS = 2_000_000_000
+_MAX_WAIT_NS = 10_000_000
+"""Longest select() wait: sim-rate streams and the stop flag are checked at least at 100 Hz."""
+
+
+@dataclass
+class MavlinkCounters:
+    datagrams_rx: int = 0
+    frames_rx: int = 0
+    """Well-formed frames accepted (signed correctly when signing is on)."""
+    malformed: int = 0
+    unknown_msg: int = 0
+    refused_unsigned: int = 0
+    refused_bad_signature: int = 0
+    not_for_us: int = 0
+    handler_errors: int = 0
+    setpoints_refused: int = 0
+    frames_tx: int = 0
+    send_errors: int = 0
+    commands: dict[str, int] = field(default_factory=dict)
+    """By MAV_RESULT name (ACCEPTED, DENIED, UNSUPPORTED, ...), retransmissions included."""
+    commands_by_id: dict[int, dict[str, int]] = field(default_factory=dict)
+
+
+class MavlinkServer:
+    """PX4-dialect MAVLink endpoint of one vehicle (system id ``vehicle + 1``, component 1)."""
+
+    def __init__(
+        self,
+        autopilot: AutopilotApi,
+        vehicle: int,
+        ports: PortsConfig | None = None,
+        signing: SigningConfig | None = None,
+        *,
+        wall_ns: Callable[[], int] = real_monotonic_ns,
+        unix_ns: Callable[[], int] = real_time_ns,
+        tap: Callable[[bytes], None] | None = None,
+    ) -> None:
+        self.api = autopilot
+        self.vehicle = vehicle
+        self.sysid = vehicle + 1
+        self.compid = 1
+        self.ports = ports or PortsConfig()
+        self._wall_ns = wall_ns
+        self._tap = tap
+        self.codec = Codec(self.sysid, self.compid, signing, unix_ns)
+        mav = self.codec.mav
+        self.links = [UdpLink(cfg) for cfg in self.ports.links(vehicle)]
+        self.streams = StreamScheduler()
+        self.heartbeat = HeartbeatSchedule()
+        self.params = ParamService(autopilot, mav)
+        self.missions = MissionService(autopilot, mav)
+        self.commands = CommandService(
+            autopilot, self._request_message, self.streams.set_interval, getattr(autopilot, "inject_failure", None)
+        )
+        self._progress = ProgressTracker()
+        self._counters = MavlinkCounters()
+        self._counter_lock = threading.Lock()
+        self._texts_sent: dict[str, int] = {}
+        self._errors_logged: set[str] = set()
+        self._chunk_id = 0
+        self._t_ns = 0
+        self._home: GeoPoint | None = None
+        self._state = VehicleState()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ public
+    def start(self) -> MavlinkServer:
+        if self._thread is not None:
+            raise RuntimeError("MavlinkServer already started")
+        self._thread = threading.Thread(target=self._run, name=f"mavlink-{self.vehicle}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        for link in self.links:
+            link.close()
+
+    def close(self) -> None:
+        """Same as ``stop()`` (the autopilot host's attach hook closes what it attached)."""
+        self.stop()
+
+    def __enter__(self) -> MavlinkServer:
+        return self.start()
+
+    def __exit__(self, *_exc: object) -> None:
+        self.stop()
+
+    def local_address(self, link: str) -> tuple[str, int]:
+        """The bound address of link ``'api'`` or ``'gcs'`` (useful with port 0)."""
+        for lk in self.links:
+            if lk.name == link:
+                return lk.local_address
+        raise KeyError(f"no MAVLink link named {link!r} (have {[lk.name for lk in self.links]})")
+
+    def counters(self) -> MavlinkCounters:
+        with self._counter_lock:
+            c = copy.deepcopy(self._counters)
+        c.send_errors = sum(lk.send_errors for lk in self.links)
+        return c
+
+    # ------------------------------------------------------------------ loop
+    def _run(self) -> None:
+        socks = [lk.sock for lk in self.links]
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select(socks, [], [], self._wait_s())
+            except (OSError, ValueError):
+                if self._stop.is_set():
+                    return
+                raise
+            now = self._wall_ns()
+            for i, link in enumerate(self.links):
+                if link.sock in ready:
+                    for data, addr in link.receive(512, now):
+                        self._on_datagram(i, data, addr, now)
+            try:
+                self._tick(self._wall_ns())
+            except Exception as e:
+                self._count("handler_errors")
+                self._log_once(e, "periodic work")
+
+    def _wait_s(self) -> float:
+        if self.params.busy:
+            return 0.002
+        nxt = self.streams.next_due_wall_ns()
+        wait = _MAX_WAIT_NS if nxt is None else min(_MAX_WAIT_NS, max(0, nxt - self._wall_ns()))
+        return wait / 1e9
+
+    def _log_once(self, e: Exception, what: str) -> None:
+        """A traceback the first time an error of this kind happens, debug lines after that."""
+        key = f"{what}: {type(e).__name__}"
+        if key in self._errors_logged:
+            log.debug("vehicle %d: %s failed again: %s", self.vehicle, what, e)
+            return
+        self._errors_logged.add(key)
+        log.exception(
+            "vehicle %d: MAVLink %s failed (further failures of this kind logged at debug)", self.vehicle, what
+        )
+
+    def _count(self, name: str, n: int = 1) -> None:
+        with self._counter_lock:
+            setattr(self._counters, name, getattr(self._counters, name) + n)
+
+    # ------------------------------------------------------------------ receive
+    def _on_datagram(self, link: int, data: bytes, addr: tuple[str, int], now: int) -> None:
+        self._count("datagrams_rx")
+        if self._tap is not None:
+            self._tap(data)
+        for d in self.codec.decode(data):
+            if d.status is FrameStatus.MALFORMED:
+                self._count("malformed")
+            elif d.status is FrameStatus.UNKNOWN:
+                self._count("unknown_msg")
+            elif d.status is FrameStatus.UNSIGNED:
+                self._count("refused_unsigned")
+            elif d.status is FrameStatus.BAD_SIGNATURE:
+                self._count("refused_bad_signature")
+            elif d.message is not None:
+                self._count("frames_rx")
+                m = d.message
+                origin = Origin(link, addr, m.get_srcSystem(), m.get_srcComponent())
+                try:
+                    self._dispatch(m, origin, now)
+                except Exception as e:
+                    self._count("handler_errors")
+                    self._log_once(e, f"handling {m.get_type()}")
+
+    def _for_us(self, m: MAVLinkMessage) -> bool:
+        ts = getattr(m, "target_system", 0)
+        tc = getattr(m, "target_component", 0)
+        return ts in (0, self.sysid) and tc in (0, self.compid)
+
+    def _dispatch(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
+        mid = m.get_msgId()
+        if mid == _M.MAVLINK_MSG_ID_HEARTBEAT:
+            return
+        if not self._for_us(m):
+            self._count("not_for_us")
+            return
+        if mid in (_M.MAVLINK_MSG_ID_COMMAND_LONG, _M.MAVLINK_MSG_ID_COMMAND_INT):
+            self._command(m, origin, now)
+        elif mid in _SETPOINT_IDS:
+            r = handle_setpoint(self.api, m)
+            if not r.ok:
+                self._count("setpoints_refused")
+                self._say(Severity.WARNING, r.reason, now)
+        elif mid in _PARAM_IDS:
+            outs, refusal = self.params.handle(m, origin)
+            self._send_all(outs, now)
+            if refusal is not None:
+                self._say(Severity.WARNING, refusal.reason, now)
+        elif mid in _MISSION_IDS:
+            self._send_all(self.missions.handle(m, origin, now), now)
+            self._mission_refusals(now)
+        elif mid == _M.MAVLINK_MSG_ID_SET_MODE:
+            custom = m.custom_mode
+            r = self.commands.set_mode_px4(m.base_mode, (custom >> 16) & 0xFF, (custom >> 24) & 0xFF)
+            if r.ok:
+                self.heartbeat.force()
+            elif r.reason:
+                self._say(Severity.WARNING, r.reason, now)
+        elif mid == _M.MAVLINK_MSG_ID_PING and m.target_system == 0:
+            mav = self.codec.mav
+            self._send(Out(mav.ping_encode(m.time_usec, m.seq, origin.sysid, origin.compid), origin), now)
+        elif mid == _M.MAVLINK_MSG_ID_TIMESYNC and m.tc1 == 0:
+            self._send(Out(self.codec.mav.timesync_encode(now, m.ts1), origin), now)
+
+    def _command(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
+        cmd = CommandIn.from_message(m)
+        outcome = self.commands.handle(cmd, (origin.link, origin.addr, origin.sysid, origin.compid), now)
+        r = outcome.result
+        mav = self.codec.mav
+        ack = mav.command_ack_encode(cmd.command, int(r.result), 0, 0, origin.sysid, origin.compid)
+        self._send(Out(ack, origin), now)
+        for msg in outcome.followups:
+            self._send(Out(msg, origin), now)
+        if outcome.mode_or_arming_changed:
+            self.heartbeat.force()
+        if r.result != Result.ACCEPTED and r.reason and not outcome.replayed:
+            self._say(Severity.WARNING if r.result != Result.DENIED else Severity.CRITICAL, r.reason, now)
+        name = r.result.name
+        with self._counter_lock:
+            c = self._counters
+            c.commands[name] = c.commands.get(name, 0) + 1
+            per = c.commands_by_id.setdefault(cmd.command, {})
+            per[name] = per.get(name, 0) + 1
+
+    def _request_message(self, msg_id: int) -> MAVLinkMessage | str | None:
+        mav = self.codec.mav
+        if msg_id == _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return autopilot_version(mav, self.sysid)
+        builder = BUILDERS.get(msg_id)
+        if builder is None:
+            return None
+        msg = builder(mav, self._state, self._boot_ms())
+        return "no home position yet" if msg is None else msg
+
+    # ------------------------------------------------------------------ periodic
+    def _boot_ms(self) -> int:
+        return (self._t_ns // 1_000_000) & 0xFFFFFFFF
+
+    def _tick(self, now: int) -> None:
+        state = self.api.state()
+        self._state = state
+        self._t_ns = max(self._t_ns, state.t_ns)
+        mav = self.codec.mav
+        outs: list[Out] = []
+        if self.heartbeat.due(now, state):
+            outs.append(Out(heartbeat_message(mav, state)))
+        t_ms = self._boot_ms()
+        for msg_id in self.streams.due(now, self._t_ns):
+            msg = BUILDERS[msg_id](mav, state, t_ms)
+            if msg is not None:
+                outs.append(Out(msg))
+        if state.home is not None and state.home != self._home:
+            self._home = state.home
+            home = BUILDERS[_M.MAVLINK_MSG_ID_HOME_POSITION](mav, state, t_ms)
+            if home is not None:
+                outs.append(Out(home))
+        in_mission = state.mode is FlightMode.MISSION
+        m = state.mission
+        if self._progress.changed(m.current_seq, m.count, mission_state_of(state), in_mission):
+            outs.append(Out(mission_current(mav, state, t_ms)))
+        for reached in self.api.pop_mission_reached():
+            outs.append(Out(mav.mission_item_reached_encode(reached.seq & 0xFFFF)))
+        self._send_all(outs, now)
+        for text in self.api.pop_status_texts():
+            self._say(text.severity, text.text, now)
+        self._send_all(self.params.tick(), now)
+        self._send_all(self.missions.tick(now), now)
+        self._mission_refusals(now)
+
+    def _mission_refusals(self, now: int) -> None:
+        for r in self.missions.pop_refusals():
+            self._say(Severity.WARNING, r.reason, now)
+
+    # ------------------------------------------------------------------ send
+    def _say(self, severity: Severity, text: str, now: int) -> None:
+        """STATUSTEXT to everyone; the same text is not repeated within 2 s (refusals and core events)."""
+        if not text:
+            return
+        last = self._texts_sent.get(text)
+        if last is not None and now - last < _TEXT_REPEAT_NS:
+            return
+        if len(self._texts_sent) > 256:
+            self._texts_sent = {t: n for t, n in self._texts_sent.items() if now - n < _TEXT_REPEAT_NS}
+        self._texts_sent[text] = now
+        self._chunk_id += 1
+        for msg in statustext(self.codec.mav, severity, text, self._chunk_id):
+            self._send(Out(msg), now)
+
+    def _send_all(self, outs: list[Out], now: int) -> None:
+        for o in outs:
+            self._send(o, now)
+
+    def _send(self, out: Out, now: int) -> None:
+        data = self.codec.encode(out.msg)
+        if self._tap is not None:
+            self._tap(data)
+        sent = 0
+        if out.to is None:
+            for link in self.links:
+                for addr in link.destinations(now):
+                    sent += link.send(data, addr)
+        else:
+            sent += self.links[out.to.link].send(data, out.to.addr)
+        if sent:
+            self._count("frames_tx", sent)

@@ -1,0 +1,148 @@
+"""UDP links of one vehicle: the API link (to the mission script's port) and the GCS link.
+
+Each link is one UDP socket. It always sends to its configured remote (``14540 + i`` for the API link,
+``14550`` for the GCS link, like PX4 SITL) and also to every peer that sent it something and was heard
+within the last ``peer_timeout_ns`` of wall time (MAVSDK forgets a UDP peer silent for 10 s; so do we).
+Replies go to the address a message came from. Socket errors (ICMP port unreachable when nobody listens,
+full buffers) are counted, never raised.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import socket
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from harness.errors import ScenarioError
+
+log = logging.getLogger(__name__)
+
+Address = tuple[str, int]
+
+PEER_TIMEOUT_NS = 10_000_000_000
+_RECV_SIZE = 65_535
+
+
+@dataclass(frozen=True, slots=True)
+class LinkConfig:
+    name: str
+    local: Address
+    """Address to bind; port 0 = any free port."""
+    remote: Address | None
+    """Where to send even before anyone has spoken to us (None: only to peers)."""
+
+
+@dataclass(frozen=True, slots=True)
+class PortsConfig:
+    """Port plan (DESIGN.md): vehicle ``i`` sends to ``api_port_base + i`` and to ``gcs_port``.
+
+    ``api_local_port_base`` / ``gcs_local_port_base``: 0 binds any free port (no collisions between
+    parallel runs); otherwise the vehicle binds ``base + i`` (PX4 SITL uses 14580 and 18570), which is what
+    a script that connects out (``udpout://``) needs. ``gcs_port = 0`` disables the GCS link.
+    """
+
+    api_port_base: int = 14540
+    gcs_port: int = 14550
+    remote_host: str = "127.0.0.1"
+    bind_host: str = "127.0.0.1"
+    api_local_port_base: int = 0
+    gcs_local_port_base: int = 0
+
+    def links(self, vehicle: int) -> tuple[LinkConfig, ...]:
+        if vehicle < 0:
+            raise ScenarioError(f"vehicle index must be >= 0, got {vehicle}")
+        for name, port in (
+            ("api_port_base", self.api_port_base),
+            ("gcs_port", self.gcs_port),
+            ("api_local_port_base", self.api_local_port_base),
+            ("gcs_local_port_base", self.gcs_local_port_base),
+        ):
+            if not 0 <= port <= 65535:
+                raise ScenarioError(f"MAVLink port setting {name}={port} is not a UDP port (0..65535)")
+
+        def local(base: int) -> Address:
+            return (self.bind_host, base + vehicle if base else 0)
+
+        links = [LinkConfig("api", local(self.api_local_port_base), (self.remote_host, self.api_port_base + vehicle))]
+        if self.gcs_port:
+            links.append(LinkConfig("gcs", local(self.gcs_local_port_base), (self.remote_host, self.gcs_port)))
+        return tuple(links)
+
+
+class UdpLink:
+    """One non-blocking UDP socket with its remote and its recently heard peers."""
+
+    def __init__(self, config: LinkConfig, peer_timeout_ns: int = PEER_TIMEOUT_NS) -> None:
+        self.config = config
+        self.name = config.name
+        self.peer_timeout_ns = peer_timeout_ns
+        self._peers: dict[Address, int] = {}
+        self.send_errors = 0
+        self.recv_errors = 0
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+            sock.bind(config.local)
+        except OSError as e:
+            sock.close()
+            raise ScenarioError(
+                f"MAVLink {config.name} link cannot bind {config.local[0]}:{config.local[1]} ({e}); "
+                "choose another port base or 0 for a free port"
+            ) from None
+        sock.setblocking(False)
+        self.sock = sock
+
+    @property
+    def local_address(self) -> Address:
+        host, port = self.sock.getsockname()[:2]
+        return (host, port)
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def receive(self, max_datagrams: int, now_ns: int) -> Iterator[tuple[bytes, Address]]:
+        """Up to ``max_datagrams`` waiting datagrams; notes each sender as a peer heard at ``now_ns``."""
+        for _ in range(max_datagrams):
+            try:
+                data, addr = self.sock.recvfrom(_RECV_SIZE)
+            except BlockingIOError:
+                return
+            except OSError as e:
+                # ECONNREFUSED: an ICMP port-unreachable for an earlier send (nobody listens there yet).
+                if e.errno != errno.ECONNREFUSED:
+                    self.recv_errors += 1
+                    log.debug("%s link: receive error %s", self.name, e)
+                continue
+            peer = (addr[0], addr[1])
+            self._peers[peer] = now_ns
+            yield data, peer
+
+    def destinations(self, now_ns: int) -> list[Address]:
+        """The remote and the live peers (forgets peers silent longer than the timeout)."""
+        stale = [a for a, t in self._peers.items() if now_ns - t > self.peer_timeout_ns]
+        for a in stale:
+            del self._peers[a]
+            log.info("%s link: forgot peer %s:%d (silent for over %.0f s)", self.name, *a, self.peer_timeout_ns / 1e9)
+        dests = list(self._peers)
+        remote = self.config.remote
+        if remote is not None and remote not in self._peers:
+            dests.append(remote)
+        return dests
+
+    def peers(self) -> list[Address]:
+        return list(self._peers)
+
+    def send(self, data: bytes, addr: Address) -> bool:
+        try:
+            self.sock.sendto(data, addr)
+            return True
+        except OSError as e:
+            if e.errno != errno.ECONNREFUSED:
+                self.send_errors += 1
+                log.debug("%s link: send to %s:%d failed: %s", self.name, addr[0], addr[1], e)
+            return False
+
+    def close(self) -> None:
+        self.sock.close()
