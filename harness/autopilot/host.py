@@ -32,6 +32,32 @@ class Closeable(Protocol):
     def close(self) -> Any: ...
 
 
+class AutoTakeoff:
+    """An ``attach`` hook for benchmarks and debugging: arms and takes off as soon as the checks pass.
+
+    It polls on the wall clock from its own thread, as a ground station would.
+    """
+
+    def __init__(self, ap: Autopilot, alt_m: float, poll_s: float = 0.05) -> None:
+        self.ap = ap
+        self.alt_m = alt_m
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._run, args=(poll_s,), name=f"auto-takeoff-{ap.vehicle}", daemon=True
+        )
+        self._thread.start()
+
+    def _run(self, poll_s: float) -> None:
+        while not self._stop.wait(poll_s):
+            if self.ap.arming_check() == "" and self.ap.arm().ok:
+                self.ap.takeoff(self.alt_m)
+                return
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(1.0)
+
+
 def make_autopilots(
     vehicles: Sequence[int], config_for: Callable[[int], AutopilotConfig] | None = None
 ) -> dict[int, Autopilot]:
@@ -125,6 +151,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--vehicles", required=True, help="comma-separated vehicle indices this process flies")
     ap.add_argument("--name", default=None)
     ap.add_argument("--ground-truth", action="store_true", help="debug: estimator replaced by ground truth")
+    ap.add_argument("--takeoff-alt", type=float, default=None, help="arm and take off to this height when ready")
     args = ap.parse_args(argv)
     try:
         vehicles = [int(v) for v in args.vehicles.split(",") if v.strip()]
@@ -135,6 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.address,
         vehicles,
         config_for=lambda v: AutopilotConfig(vehicle=v, use_ground_truth=args.ground_truth),
+        attach=(lambda a: AutoTakeoff(a, args.takeoff_alt)) if args.takeoff_alt is not None else None,
         name=args.name,
     )
     return 0

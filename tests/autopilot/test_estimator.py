@@ -67,7 +67,8 @@ def test_position_from_gps_and_baro_and_ground_truth_switch() -> None:
     assert math.hypot(est.pn, est.pe) < 0.3 and abs(est.pd) < 0.3 and math.hypot(est.vn, est.ve) < 0.1
     lat, lon, alt = est.geo()
     tlat, tlon, talt = REF.to_geo(5.0, -3.0, -2.0)
-    assert abs(lat - tlat) * 111e3 < 0.3 and abs(alt - talt) < 1.0  # baro offset taken out by GPS altitude
+    assert abs(lat - tlat) * 111e3 < 0.3 and abs(lon - tlon) * 75e3 < 0.3
+    assert abs(alt - talt) < 1.0  # the baro offset is taken out by the GPS altitude
     gt = Estimator(params, use_ground_truth=True)
     gt.update(frames[-1], 0.004)
     assert gt.q == frames[-1].truth.quat and gt.pos_valid

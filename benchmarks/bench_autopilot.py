@@ -1,0 +1,146 @@
+"""Autopilot benchmark: cost per vehicle per tick, and real-time factor of physics + autopilot (+ lockstep).
+
+Run: ``.venv/bin/python benchmarks/bench_autopilot.py [--seconds 20] [--vehicles 1 10] [--no-channel]``
+
+Every vehicle arms, takes off to 5 m with its sensor-based estimator and hovers; the measured window
+starts once all are hovering. Figures:
+- in-process loop (Physics.step + Autopilot.step, no sockets): autopilot and physics µs per vehicle-tick, RTF;
+- through the lockstep channel (TCP loopback): physics client in this process, autopilots in separate
+  processes — one host process for all vehicles, and one process per vehicle — RTF of each layout.
+Numbers are wall-clock on a shared machine: noisy when other work runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+
+from harness.autopilot.api import FlightMode
+from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+from harness.fdm.frame import encode_frame
+from harness.fdm.physics import Physics, PhysicsConfig
+from harness.simclock import protocol as p
+from harness.simclock.channel import Channel, ChannelConfig
+from harness.simclock.client import ChannelClient
+
+TICK_HZ = 250
+SUBSTEP_HZ = 1000
+ALT_M = 5.0
+
+
+def _physics(n: int) -> Physics:
+    return Physics(PhysicsConfig(n_vehicles=n, seed=0, substep_hz=SUBSTEP_HZ, tick_hz=TICK_HZ))
+
+
+def in_process(n: int, seconds: float) -> dict[str, float]:
+    phys = _physics(n)
+    aps = [Autopilot(AutopilotConfig(vehicle=v)) for v in range(n)]
+    frames = phys.frames()
+    ticks = 0
+    # get everyone up (not measured)
+    for _ in range(TICK_HZ * 25):
+        frames = phys.step([ap.step(f) for ap, f in zip(aps, frames, strict=True)])
+        ticks += 1
+        if ticks % 25 == 0:
+            for ap in aps:
+                s = ap.state()
+                if not s.armed and ap.arming_check() == "":
+                    ap.arm()
+                    ap.takeoff(ALT_M)
+        if ticks > TICK_HZ * 3 and all(ap.state().mode == FlightMode.HOLD and ap.state().armed for ap in aps):
+            break
+    assert all(ap.state().armed for ap in aps), [ap.arming_check() for ap in aps]
+    n_ticks = round(seconds * TICK_HZ)
+    ap_ns = 0
+    perf = time.perf_counter_ns
+    t0 = perf()
+    for _ in range(n_ticks):
+        a = perf()
+        motors = [ap.step(f) for ap, f in zip(aps, frames, strict=True)]
+        ap_ns += perf() - a
+        frames = phys.step(motors)
+    wall_ns = perf() - t0
+    alts = [-f.truth.pos_ned_m[2] for f in frames]
+    return {
+        "autopilot_us_per_vehicle_tick": ap_ns / 1e3 / (n_ticks * n),
+        "physics_us_per_vehicle_tick": (wall_ns - ap_ns) / 1e3 / (n_ticks * n),
+        "rtf": seconds / (wall_ns / 1e9),
+        "min_alt_m": min(alts),
+        "max_alt_m": max(alts),
+    }
+
+
+def through_channel(n: int, seconds: float, per_vehicle_process: bool) -> dict[str, float]:
+    ch = Channel(ChannelConfig(address="tcp://127.0.0.1:0", tick_hz=TICK_HZ)).start()
+    groups = [[v] for v in range(n)] if per_vehicle_process else [list(range(n))]
+    env = dict(os.environ)
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "harness.autopilot.host", "--address", ch.address,
+             "--vehicles", ",".join(map(str, g)), "--takeoff-alt", str(ALT_M)],
+            env=env,
+        )
+        for g in groups
+    ]
+    phys = _physics(n)
+    client = ChannelClient.connect(ch.address, p.PeerKind.PHYSICS, "physics", vehicles=tuple(range(n)))
+    try:
+        frames = phys.frames()
+        warm = TICK_HZ * 20
+        total = warm + round(seconds * TICK_HZ)
+        t0 = 0
+        for k in range(total):
+            if k == warm:
+                t0 = time.perf_counter_ns()
+            client.send_many(
+                [p.BeginTickAC(f.t_ns, k, v, n, f.truth.pos_ned_m, encode_frame(f)) for v, f in enumerate(frames)]
+            )
+            motors: list[tuple[float, ...]] = [()] * n
+            got = 0
+            while got < n:
+                for msg in client.recv():
+                    if isinstance(msg, p.EndTickAC):
+                        motors[msg.vehicle] = msg.motors
+                        got += 1
+            frames = phys.step(motors)
+        wall_ns = time.perf_counter_ns() - t0
+        alts = [-f.truth.pos_ned_m[2] for f in frames]
+    finally:
+        client.close("benchmark done")
+        for pr in procs:
+            try:
+                pr.wait(10)
+            except subprocess.TimeoutExpired:
+                pr.kill()
+        ch.stop()
+    return {"rtf": seconds / (wall_ns / 1e9), "min_alt_m": min(alts), "max_alt_m": max(alts)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seconds", type=float, default=20.0, help="measured sim seconds of hover")
+    ap.add_argument("--vehicles", type=int, nargs="+", default=[1, 10])
+    ap.add_argument("--no-channel", action="store_true")
+    args = ap.parse_args()
+    print(f"rates: physics sub-step {SUBSTEP_HZ} Hz, control tick {TICK_HZ} Hz; hover at {ALT_M} m, "
+          f"{args.seconds:g} s of sim time measured; machine shared (noisy)")
+    for n in args.vehicles:
+        r = in_process(n, args.seconds)
+        print(f"in-process  {n:3d} vehicle(s): autopilot {r['autopilot_us_per_vehicle_tick']:6.1f} us/vehicle/tick, "
+              f"physics {r['physics_us_per_vehicle_tick']:6.1f} us/vehicle/tick, RTF {r['rtf']:7.1f}x "
+              f"(alt {r['min_alt_m']:.2f}-{r['max_alt_m']:.2f} m)")
+        if args.no_channel:
+            continue
+        layouts = [False, True] if n > 1 else [False]
+        for per_vehicle in layouts:
+            r = through_channel(n, args.seconds, per_vehicle)
+            label = "process per vehicle" if per_vehicle else "one host process  "
+            print(f"channel     {n:3d} vehicle(s), {label}: RTF {r['rtf']:7.1f}x "
+                  f"(alt {r['min_alt_m']:.2f}-{r['max_alt_m']:.2f} m)")
+
+
+if __name__ == "__main__":
+    main()
