@@ -71,3 +71,12 @@ def test_mission_validation() -> None:
     it = MissionItem(0, MavFrame.GLOBAL_RELATIVE_ALT_INT, 16, x=473977420, y=85455940)
     assert abs(it.lat_deg - 47.397742) < 1e-9
     assert MissionItem(0, 6, 16, x=47.5, y=8.5).lat_deg == 47.5
+
+
+def test_autopilot_satisfies_the_api_protocol() -> None:
+    from harness.autopilot.api import AutopilotApi
+    from harness.autopilot.autopilot import Autopilot
+
+    ap: AutopilotApi = Autopilot()  # checked structurally by mypy
+    s = ap.state()
+    assert not s.armed and s.mode == FlightMode.HOLD and s.t_ns == 0

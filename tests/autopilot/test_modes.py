@@ -184,3 +184,36 @@ def test_orbit_keeps_radius() -> None:
         radii.append(math.hypot(rig.sim.pos[0] - 10.0, rig.sim.pos[1]))
     assert all(abs(r - 8.0) < 1.0 for r in radii)
     assert rig.ap.state().mode == FlightMode.ORBIT
+
+
+def test_offboard_position_body_velocity_and_attitude() -> None:
+    from harness.autopilot.api import AttitudeTarget, OffboardFrame
+    from harness.autopilot.mathutil import quat_from_euler
+
+    rig = Rig()
+    ap = rig.ap
+    assert ap.arm().ok
+    # from the ground, as MAVSDK's offboard examples do: a setpoint first, then the mode, then climb
+    sp = OffboardSetpoint(position_m=(0.0, 0.0, -6.0), yaw_rad=math.pi / 2)
+    assert ap.set_offboard_setpoint(sp).ok and ap.set_mode(FlightMode.OFFBOARD).ok
+
+    def stream(s: OffboardSetpoint | AttitudeTarget, seconds: float) -> None:
+        for _ in range(round(seconds * 10)):
+            if isinstance(s, OffboardSetpoint):
+                ap.set_offboard_setpoint(s)
+            else:
+                ap.set_attitude_target(s)
+            rig.run(0.1)
+
+    stream(sp, 10.0)
+    assert abs(rig.sim.pos[2] + 6.0) < 0.3 and ap.state().landed_state == LandedState.IN_AIR
+    assert abs(ap.state().yaw_rad - math.pi / 2) < 0.1
+    # body-frame velocity: forward while facing east = east
+    stream(OffboardSetpoint(velocity_m_s=(2.0, 0.0, 0.0), frame=OffboardFrame.BODY_NED), 4.0)
+    assert abs(rig.sim.vel[1] - 2.0) < 0.3 and abs(rig.sim.vel[0]) < 0.3
+    stream(OffboardSetpoint(velocity_m_s=(0.0, 0.0, 0.0)), 3.0)
+    # attitude: 10 degrees of roll at hover thrust, facing east, accelerates south
+    x0 = rig.sim.pos[0]
+    stream(AttitudeTarget(quat_from_euler(math.radians(10.0), 0.0, math.pi / 2), 0.5), 2.0)
+    assert rig.sim.pos[0] < x0 - 1.0
+    assert abs(ap.state().roll_rad - math.radians(10.0)) < math.radians(3.0)
