@@ -1,0 +1,173 @@
+"""The MAVLink server over real UDP, driven by a pymavlink ground station, with a real Autopilot that is
+not stepping (a paused simulation): wall-clock liveness, identity, parameters, commands, streams."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import struct
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from harness.autopilot.api import FlightMode
+from harness.autopilot.mavlink.telemetry import SENSOR_GPS, SENSOR_GYRO, SENSOR_PREARM
+from harness.autopilot.mavlink.version import CAPABILITIES
+from tests.mavlink.conftest import Gcs, Rig
+
+M = mavlink2
+
+
+def test_heartbeat_on_wall_clock_while_sim_paused(gcs: Gcs, idle_rig: Rig) -> None:
+    t_before = idle_rig.ap.state().t_ns
+    beats = gcs.collect(3.2, {"HEARTBEAT"})
+    assert idle_rig.ap.state().t_ns == t_before, "the autopilot must not have stepped"
+    times = [t for t, _ in beats]
+    assert len(times) >= 3, f"only {len(times)} heartbeats in 3.2 s of wall time"
+    gaps = [(b - a) / 1e9 for a, b in itertools.pairwise(times)]
+    assert max(gaps) <= 1.2
+    hb = beats[0][1]
+    assert hb.type == M.MAV_TYPE_QUADROTOR and hb.autopilot == M.MAV_AUTOPILOT_PX4
+    assert hb.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+    assert hb.system_status == M.MAV_STATE_STANDBY
+    assert hb.custom_mode == FlightMode.HOLD.custom_mode == (4 << 16) | (3 << 24)
+    assert hb.get_srcSystem() == 1 and hb.get_srcComponent() == 1
+
+
+def test_streams_flow_while_paused_and_time_boot_ms_is_sim_time(gcs: Gcs, idle_rig: Rig) -> None:
+    msgs = gcs.collect(1.0, {"GLOBAL_POSITION_INT", "ATTITUDE", "VFR_HUD", "SYS_STATUS", "EXTENDED_SYS_STATE"})
+    kinds = [m.get_type() for _, m in msgs]
+    assert kinds.count("GLOBAL_POSITION_INT") >= 8 and kinds.count("ATTITUDE") >= 8
+    assert 2 <= kinds.count("VFR_HUD") <= 6
+    sim_ms = idle_rig.ap.state().t_ns // 1_000_000
+    assert {m.time_boot_ms for _, m in msgs if m.get_type() == "GLOBAL_POSITION_INT"} == {sim_ms}
+    sys_status = next(m for _, m in msgs if m.get_type() == "SYS_STATUS")
+    for bits in (sys_status.onboard_control_sensors_present, sys_status.onboard_control_sensors_health):
+        assert bits & SENSOR_GYRO and bits & SENSOR_GPS and bits & SENSOR_PREARM
+    ext = next(m for _, m in msgs if m.get_type() == "EXTENDED_SYS_STATE")
+    assert ext.landed_state == M.MAV_LANDED_STATE_ON_GROUND
+
+
+def test_autopilot_version_capabilities(gcs: Gcs, idle_rig: Rig) -> None:
+    ack = gcs.command(512, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    assert ack.result == M.MAV_RESULT_ACCEPTED and ack.target_system == 245 and ack.target_component == 190
+    v = gcs.recv("AUTOPILOT_VERSION")
+    for cap in ("MISSION_INT", "COMMAND_INT", "MAVLINK2", "PARAM_ENCODE_BYTEWISE", "MISSION_FENCE", "MISSION_RALLY"):
+        assert v.capabilities & getattr(M, "MAV_PROTOCOL_CAPABILITY_" + cap), cap
+    assert v.capabilities == CAPABILITIES
+    assert gcs.command(520).result == M.MAV_RESULT_ACCEPTED
+    assert gcs.recv("AUTOPILOT_VERSION").uid == v.uid
+
+
+def test_full_parameter_download_is_consistent(gcs: Gcs, idle_rig: Rig) -> None:
+    gcs.send(gcs.mav.param_request_list_encode(1, 0))
+    got = gcs.collect(1.5, {"PARAM_VALUE"})
+    values = [m for _, m in got]
+    expected = len(idle_rig.ap.params)
+    assert {m.param_count for m in values} == {expected}
+    assert sorted(m.param_index for m in values) == list(range(expected))
+    names = {m.param_id: m for m in values}
+    assert len(names) == expected
+    for name in ("MIS_TAKEOFF_ALT", "RTL_RETURN_ALT", "MPC_XY_VEL_MAX", "NAV_DLL_ACT", "SYS_FAILURE_EN", "GF_ACTION"):
+        assert name in names
+    # INT32 bytewise in the float field, FLOAT as is
+    nav = names["SYS_AUTOSTART"]
+    assert nav.param_type == M.MAV_PARAM_TYPE_INT32
+    assert struct.unpack("<i", struct.pack("<f", nav.param_value))[0] == 4001
+    tko = names["MIS_TAKEOFF_ALT"]
+    assert tko.param_type == M.MAV_PARAM_TYPE_REAL32 and math.isclose(
+        tko.param_value, idle_rig.ap.params["MIS_TAKEOFF_ALT"], rel_tol=1e-6
+    )
+    # read by name (index -1) and by index agree with the list
+    gcs.send(gcs.mav.param_request_read_encode(1, 1, b"RTL_RETURN_ALT", -1))
+    by_name = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "RTL_RETURN_ALT")
+    assert by_name.param_index == names["RTL_RETURN_ALT"].param_index
+    gcs.send(gcs.mav.param_request_read_encode(1, 1, b"", by_name.param_index))
+    by_index = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_index == by_name.param_index)
+    assert by_index.param_id == "RTL_RETURN_ALT"
+
+
+def _int_as_float(v: int) -> float:
+    return float(struct.unpack("<f", struct.pack("<i", v))[0])
+
+
+def test_param_set_is_echoed_with_same_type_and_value(gcs: Gcs, idle_rig: Rig) -> None:
+    gcs.send(gcs.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 7.5, M.MAV_PARAM_TYPE_REAL32))
+    echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "MIS_TAKEOFF_ALT")
+    assert echo.param_value == 7.5 and echo.param_type == M.MAV_PARAM_TYPE_REAL32
+    assert idle_rig.ap.params["MIS_TAKEOFF_ALT"] == 7.5
+    # a negative INT32 travels bytewise (its bit pattern is a NaN as a float)
+    gcs.send(gcs.mav.param_set_encode(1, 1, b"FLW_TGT_FA", _int_as_float(-120), M.MAV_PARAM_TYPE_INT32))
+    echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "FLW_TGT_FA")
+    assert echo.param_type == M.MAV_PARAM_TYPE_INT32
+    assert struct.unpack("<i", struct.pack("<f", echo.param_value))[0] == -120
+    assert idle_rig.ap.get_param("FLW_TGT_FA") == -120
+    # out of range: refused, echoed unchanged, with a reason
+    gcs.send(gcs.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 5000.0, M.MAV_PARAM_TYPE_REAL32))
+    echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "MIS_TAKEOFF_ALT")
+    assert echo.param_value == 7.5
+    assert "MIS_TAKEOFF_ALT" in gcs.recv("STATUSTEXT").text
+
+
+def test_commands_are_acked_unsupported_and_refusals_have_reasons(gcs: Gcs, idle_rig: Rig) -> None:
+    assert gcs.command(31000).result == M.MAV_RESULT_UNSUPPORTED  # MAV_CMD_USER_1
+    assert gcs.command(246, 1.0).result == M.MAV_RESULT_UNSUPPORTED  # reboot: not offered
+    ack = gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0.5)
+    assert ack.result == M.MAV_RESULT_DENIED
+    assert "param1" in gcs.recv("STATUSTEXT").text
+    ack = gcs.command(M.MAV_CMD_DO_CHANGE_SPEED, 1.0, math.nan)
+    assert ack.result == M.MAV_RESULT_DENIED
+    assert gcs.command(M.MAV_CMD_DO_ORBIT, math.inf, 2.0).result == M.MAV_RESULT_DENIED
+    assert gcs.command(M.MAV_CMD_DO_REPOSITION, -1, 1, 0, math.nan, 95.0, 8.0, 500.0).result == M.MAV_RESULT_DENIED
+    ack = gcs.command(420, 0, 1, 0)
+    assert ack.result == M.MAV_RESULT_DENIED
+    assert "SYS_FAILURE_EN" in gcs.recv("STATUSTEXT").text
+    # a mode the autopilot lacks; then a real mode change is followed at once by a heartbeat
+    assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 1, 0).result == M.MAV_RESULT_DENIED  # MANUAL: no RC
+    assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_DENIED  # OFFBOARD: no setpoint
+    c = idle_rig.server.counters()
+    assert c.commands["UNSUPPORTED"] == 2 and c.commands["DENIED"] >= 6
+    assert c.commands_by_id[M.MAV_CMD_COMPONENT_ARM_DISARM] == {"DENIED": 1}
+
+
+def test_retransmitted_command_is_answered_not_repeated(gcs: Gcs, idle_rig: Rig) -> None:
+    first = gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+    assert first.result == M.MAV_RESULT_ACCEPTED
+    again = gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, confirmation=1)
+    assert again.result == first.result
+    idle_rig.step_s(0.1)  # commands take effect at the next autopilot step
+    assert gcs.recv("HEARTBEAT", 1.5, lambda m: m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0).result == M.MAV_RESULT_ACCEPTED
+    idle_rig.step_s(0.1)
+    hb = gcs.recv("HEARTBEAT", 1.5, lambda m: not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
+    assert hb.system_status == M.MAV_STATE_STANDBY
+    assert not idle_rig.ap.state().armed
+
+
+def test_set_message_interval_and_request_message(gcs: Gcs, idle_rig: Rig) -> None:
+    assert gcs.command(511, M.MAVLINK_MSG_ID_HIGHRES_IMU, 20_000).result == M.MAV_RESULT_ACCEPTED  # 50 Hz
+    assert gcs.command(511, M.MAVLINK_MSG_ID_ATTITUDE, -1).result == M.MAV_RESULT_ACCEPTED
+    assert gcs.command(511, 9999, 1000).result == M.MAV_RESULT_UNSUPPORTED
+    gcs.collect(0.2)
+    kinds = [m.get_type() for _, m in gcs.collect(1.0, {"HIGHRES_IMU", "ATTITUDE"})]
+    assert kinds.count("HIGHRES_IMU") >= 30 and kinds.count("ATTITUDE") == 0
+    assert gcs.command(511, M.MAVLINK_MSG_ID_ATTITUDE, 0).result == M.MAV_RESULT_ACCEPTED  # default again
+    assert gcs.recv("ATTITUDE", 1.0)
+    assert gcs.command(512, M.MAVLINK_MSG_ID_HOME_POSITION).result in (
+        M.MAV_RESULT_ACCEPTED,
+        M.MAV_RESULT_TEMPORARILY_REJECTED,
+    )
+    assert gcs.command(512, 12345).result == M.MAV_RESULT_UNSUPPORTED
+
+
+def test_ping_and_home_after_arming(gcs: Gcs, idle_rig: Rig) -> None:
+    gcs.send(gcs.mav.ping_encode(123456, 42, 0, 0))
+    pong = gcs.recv("PING", cond=lambda m: m.seq == 42)
+    assert pong.time_usec == 123456 and pong.target_system == 245
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0).result == M.MAV_RESULT_ACCEPTED
+    idle_rig.step_s(0.1)
+    home = gcs.recv("HOME_POSITION", 2.0)
+    state = idle_rig.ap.state()
+    assert state.home is not None
+    assert abs(home.latitude - round(state.home.lat_deg * 1e7)) <= 1
+    assert gcs.command(512, M.MAVLINK_MSG_ID_HOME_POSITION).result == M.MAV_RESULT_ACCEPTED
+    assert gcs.recv("HOME_POSITION").altitude == round(state.home.alt_amsl_m * 1000)
