@@ -58,6 +58,8 @@ class PositionControl:
         self.ix = self.iy = 0.0
         self.iz = 0.0
         self.xy_vel_max = params["MPC_XY_VEL_MAX"]
+        self.hover = params["MPC_THR_HOVER"]
+        """Hover thrust in use (the flight core updates it from its in-flight estimate)."""
         self.thr = (0.0, 0.0, -params["MPC_THR_HOVER"])
         self.vel_sp = (0.0, 0.0, 0.0)
         self._load()
@@ -69,7 +71,6 @@ class PositionControl:
         self.kv_xy, self.ki_xy, self.kd_xy = p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_I_ACC"], p["MPC_XY_VEL_D_ACC"]
         self.kv_z, self.ki_z, self.kd_z = p["MPC_Z_VEL_P_ACC"], p["MPC_Z_VEL_I_ACC"], p["MPC_Z_VEL_D_ACC"]
         self.vel_up, self.vel_dn = p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"]
-        self.hover = p["MPC_THR_HOVER"]
         self.thr_min, self.thr_max = p["MPC_THR_MIN"], p["MPC_THR_MAX"]
         self.tilt_max = math.radians(p["MPC_TILTMAX_AIR"])
         self.acc_hor_max = p["MPC_ACC_HOR_MAX"]

@@ -56,6 +56,8 @@ class Estimator:
         self._gps_vel_prev: tuple[int, float, float, float] | None = None
         self._truth0: tuple[float, float, float] | None = None
         self._t_ns = 0
+        self.acc_d = 0.0
+        """Estimated vertical (down) acceleration, m/s²."""
         self._mag_err = 0.0
         self._ver = -1
         self._load()
@@ -189,6 +191,7 @@ class Estimator:
         an = (1 - 2 * (y * y + z * z)) * fx + 2 * (x * y - w * z) * fy + 2 * (x * z + w * y) * fz + self.abn
         ae = 2 * (x * y + w * z) * fx + (1 - 2 * (x * x + z * z)) * fy + 2 * (y * z - w * x) * fz + self.abe
         ad = 2 * (x * z - w * y) * fx + 2 * (y * z + w * x) * fy + (1 - 2 * (x * x + y * y)) * fz + G_M_S2 + self.abd
+        self.acc_d = ad
         h = 0.5 * dt * dt
         self.pn += self.vn * dt + an * h
         self.pe += self.ve * dt + ae * h

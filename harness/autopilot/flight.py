@@ -19,7 +19,7 @@ from harness.autopilot.control import (
 )
 from harness.autopilot.estimator import Estimator
 from harness.autopilot.geofence import Geofence
-from harness.autopilot.mathutil import GeoRef
+from harness.autopilot.mathutil import G_M_S2, GeoRef
 from harness.autopilot.navigator import Navigator
 from harness.autopilot.params import Params
 from harness.fdm.frame import SensorFrame
@@ -60,6 +60,7 @@ class FlightCore:
         self._coll = 0.0
         self._yaw_ff = 0.0
         self._ver = -1
+        self._hover_param = -1.0
         self._load()
 
     def _text(self, severity: int, text: str) -> None:
@@ -69,7 +70,10 @@ class FlightCore:
         p = self.params
         self._ver = p.version
         self._idle = p["MPC_THR_MIN"] * 0.5
-        self._hover = p["MPC_THR_HOVER"]
+        if p["MPC_THR_HOVER"] != self._hover_param:
+            self._hover_param = p["MPC_THR_HOVER"]
+            self.hover_thrust = self._hover = self.pos_ctl.hover = self._hover_param
+        self._hte = bool(p["MPC_USE_HTE"])
         self._fac = p["THR_MDL_FAC"]
 
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
@@ -132,6 +136,8 @@ class FlightCore:
             if on_ground:
                 # leaving the ground: no horizontal integrator from the time on the ground
                 self.pos_ctl.ix = self.pos_ctl.iy = 0.0
+            if self._hte and self.landed_state == LandedState.IN_AIR:
+                self._estimate_hover(pdt)
             thr = self.pos_ctl.update(sp, (est.pn, est.pe, est.pd), (est.vn, est.ve, est.vd), pdt)
             self._yaw_ff = 0.0
             if not _isnan(sp.yaw):
@@ -143,6 +149,19 @@ class FlightCore:
             self._qd, self._coll = thrust_to_attitude(thr, self.yaw_hold)
         rates_sp = self.att_ctl.update(est.q, self._qd, self._yaw_ff)
         return self._rates_to_motors(rates_sp, self._coll, dt)
+
+    def _estimate_hover(self, dt: float) -> None:
+        """Hover thrust from the thrust applied and the vertical acceleration it gave (PX4's MPC_USE_HTE)."""
+        tz = self.pos_ctl.thr[2]
+        denom = G_M_S2 - self.est.acc_d
+        if tz >= -0.05 or denom < 3.0:
+            return
+        h = -tz * G_M_S2 / denom
+        hov = self.hover_thrust + (dt / 3.0) * (h - self.hover_thrust)
+        hov = 0.1 if hov < 0.1 else (0.9 if hov > 0.9 else hov)
+        self.hover_thrust = hov
+        self.pos_ctl.hover = hov
+        self._hover = hov
 
     def _climb_requested(self, sp: object) -> bool:
         nav = self.nav

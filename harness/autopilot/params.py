@@ -99,6 +99,7 @@ PARAM_DEFS: tuple[ParamDef, ...] = (
     _f("MPC_TILTMAX_LND", 12.0, 10.0, 89.0, "deg"),
     _f("THR_MDL_FAC", 0.0, 0.0, 1.0, "", "Thrust model factor: thrust = f*u^2 + (1-f)*u"),
     _f("MPC_THR_HOVER", 0.5, 0.1, 0.8),
+    _i("MPC_USE_HTE", 1, 0, 1, "Estimate the hover thrust in flight (starts from MPC_THR_HOVER)"),
     _f("MPC_THR_MIN", 0.08, 0.05, 0.5),
     _f("MPC_THR_MAX", 1.0, 0.0, 1.0),
     _f("MPC_LAND_SPEED", 0.7, 0.6, 4.0, "m/s"),

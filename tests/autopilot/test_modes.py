@@ -217,3 +217,11 @@ def test_offboard_position_body_velocity_and_attitude() -> None:
     stream(AttitudeTarget(quat_from_euler(math.radians(10.0), 0.0, math.pi / 2), 0.5), 2.0)
     assert rig.sim.pos[0] < x0 - 1.0
     assert abs(ap.state().roll_rad - math.radians(10.0)) < math.radians(3.0)
+
+
+def test_hover_thrust_estimate_corrects_a_wrong_parameter() -> None:
+    rig = Rig(MPC_THR_HOVER=0.35)  # the test quad hovers at 0.5
+    rig.up(6.0)
+    rig.run(10.0)
+    assert abs(rig.ap.core.hover_thrust - 0.5) < 0.03
+    assert abs(rig.sim.pos[2] + 6.0) < 0.3
