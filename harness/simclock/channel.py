@@ -28,7 +28,7 @@ import os
 import selectors
 import socket
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -170,6 +170,11 @@ class Channel:
         self._positions: dict[int, p.Vec3] = {}
         self._join_deadline: int | None = None
         self._etas_sent_up = False
+        self._local = False
+        self._closed_all = False
+        self._deadlines: dict[_Peer, int] = {}
+        self._members: dict[p.PeerKind, list[_Peer]] | None = None
+        self._tick_result: list[p.EndTickAC] | None = None
 
     # -- lifecycle ----------------------------------------------------------------------------
 
@@ -211,20 +216,7 @@ class Channel:
         self.bind()
         try:
             while not self._stop.is_set():
-                timeout = self._next_timeout()
-                for key, mask in self._sel.select(timeout):
-                    if key.fileobj is self._server:
-                        self._accept()
-                    elif key.fileobj is self._wake_r:
-                        with contextlib.suppress(OSError):
-                            self._wake_r.recv(4096)
-                    else:
-                        peer: _Peer = key.data
-                        if mask & selectors.EVENT_WRITE:
-                            self._flush(peer)
-                        if mask & selectors.EVENT_READ and not peer.closed:
-                            self._read(peer)
-                self._check_deadlines()
+                self._poll_once(self._next_timeout())
         except _Fatal as exc:
             self._fail_run(str(exc))
         except Exception as exc:  # a bug must still end the run with a message, not hang it
@@ -232,6 +224,89 @@ class Channel:
             self._fail_run(f"internal error in channel {self.config.name}: {exc!r}")
         finally:
             self._close_all()
+
+    def _poll_once(self, timeout: float | None) -> None:
+        for key, mask in self._sel.select(timeout):
+            if key.fileobj is self._server:
+                self._accept()
+            elif key.fileobj is self._wake_r:
+                with contextlib.suppress(OSError):
+                    self._wake_r.recv(4096)
+            else:
+                peer: _Peer = key.data
+                if mask & selectors.EVENT_WRITE:
+                    self._flush(peer)
+                if mask & selectors.EVENT_READ and not peer.closed:
+                    self._read(peer)
+        self._check_deadlines()
+
+    # -- physics in the same process ------------------------------------------------------------
+
+    def attach_physics(self, name: str = "physics") -> None:
+        """Make the calling thread the clock owner: it calls :meth:`step` once per tick.
+
+        The root channel then lives inside the physics process (no socket hop between the two);
+        every other participant still connects over real sockets.
+        """
+        if self._up is not None or self.config.parent:
+            raise SimulationError(f"channel {self.config.name} already has an upstream")
+        self.bind()
+        a, b = socket.socketpair()  # a placeholder socket: the local upstream never reads or writes
+        self._local_pair = (a, b)
+        self._up = _Peer(0, a, name=name, kind=p.PeerKind.PHYSICS, upstream=True, admitted=True)
+        self._local = True
+
+    def pump(self, timeout_s: float) -> None:
+        """Between ticks: accept and admit joiners for up to ``timeout_s`` of wall time."""
+        end = real_monotonic_ns() + int(timeout_s * NS_PER_S)
+        try:
+            while True:
+                left = (end - real_monotonic_ns()) / NS_PER_S
+                if left <= 0:
+                    return
+                self._poll_once(min(left, self._next_timeout() or left))
+        except _Fatal as exc:
+            self._fail_run(str(exc))
+            raise SimulationError(str(exc)) from None
+
+    def wait_for(self, predicate: Callable[[list[tuple[str, str]]], bool], timeout_s: float) -> bool:
+        """Pump until ``predicate(subscribers())`` holds; False after ``timeout_s``."""
+        end = real_monotonic_ns() + int(timeout_s * NS_PER_S)
+        while not predicate(self.subscribers()):
+            if real_monotonic_ns() >= end:
+                return False
+            self.pump(0.01)
+        return True
+
+    def step(self, begin_ticks: list[p.BeginTickAC]) -> list[p.EndTickAC]:
+        """One tick for a local physics: hand in its BEGIN-TICK-AC, get the END-TICK-AC back.
+
+        Runs the channel loop in the calling thread until the tick (both phases) is complete.
+        Raises :class:`SimulationError` when the run failed.
+        """
+        if not self._local:
+            raise SimulationError("step() needs attach_physics() first")
+        if self.failure:
+            raise SimulationError(self.failure)
+        self._tick_result = None
+        try:
+            for m in begin_ticks:
+                self._on_upstream(m)
+            while self._tick_result is None:
+                self._poll_once(self._next_timeout())
+        except _Fatal as exc:
+            self._fail_run(str(exc))
+            raise SimulationError(str(exc)) from None
+        result, self._tick_result = self._tick_result, None
+        return result
+
+    def close(self, reason: str = "end of run") -> None:
+        """End the run for a local physics: tell every peer and close everything."""
+        self._broadcast_bye(reason)
+        self._close_all()
+        for s in getattr(self, "_local_pair", ()):
+            with contextlib.suppress(OSError):
+                s.close()
 
     # -- connections --------------------------------------------------------------------------
 
@@ -251,7 +326,7 @@ class Channel:
             return
         peer = self._add_peer(sock)
         peer.nonce = os.urandom(16)
-        peer.deadline_ns = real_monotonic_ns() + int(self.config.handshake_timeout_s * NS_PER_S)
+        self._set_deadline(peer, real_monotonic_ns() + int(self.config.handshake_timeout_s * NS_PER_S))
         peer.waiting_for = "its HELLO"
         self._send(peer, p.Challenge(p.PROTOCOL_VERSION, peer.nonce))
 
@@ -358,7 +433,7 @@ class Channel:
         peer.kind = kind
         peer.vehicle = msg.vehicle
         peer.vehicles = set(msg.vehicles)
-        peer.deadline_ns = None
+        self._set_deadline(peer, None)
         self._send(peer, p.Welcome(peer.pid, self._epoch_ns, self._phase_period_ns))
         log.info("channel %s: %s joined (vehicles %s)", self.config.name, peer.label, sorted(peer.vehicles))
         if kind == p.PeerKind.PHYSICS:
@@ -382,6 +457,7 @@ class Channel:
 
     def _admit(self, peer: _Peer) -> None:
         peer.admitted = True
+        self._members = None
         self._announce_up()
 
     def _admit_pending(self) -> None:
@@ -403,9 +479,19 @@ class Channel:
         self._send(self._up, p.Announce(tuple(sorted(held)), tuple(sorted(missions))))
 
     def _active(self, *kinds: p.PeerKind) -> Iterable[_Peer]:
-        for peer in self._peers.values():
-            if peer.admitted and not peer.upstream and not peer.closed and (not kinds or peer.kind in kinds):
-                yield peer
+        """Admitted peers below this channel, of ``kinds`` (all kinds if none); cached per membership."""
+        members = self._members
+        if members is None:
+            members = {}
+            for peer in self._peers.values():
+                if peer.admitted and not peer.upstream and not peer.closed and peer.kind is not None:
+                    members.setdefault(peer.kind, []).append(peer)
+            self._members = members
+        if not kinds:
+            return [peer for group in members.values() for peer in group]
+        if len(kinds) == 1:
+            return members.get(kinds[0], ())
+        return [peer for kind in kinds for peer in members.get(kind, ())]
 
     # -- messages from below ------------------------------------------------------------------
 
@@ -415,7 +501,7 @@ class Channel:
         elif isinstance(msg, p.EndTick0):
             if peer in self._wait0 and msg.t_ns == self._t_ns:
                 self._wait0.discard(peer)
-                peer.deadline_ns = None
+                self._set_deadline(peer, None)
                 self._trace("et0", peer)
                 self._progress()
             else:
@@ -423,7 +509,7 @@ class Channel:
         elif isinstance(msg, p.EndTick1):
             if peer in self._wait1 and msg.t_ns == self._t_ns:
                 self._wait1.discard(peer)
-                peer.deadline_ns = None
+                self._set_deadline(peer, None)
                 self._trace("et1", peer)
                 self._progress()
             else:
@@ -435,6 +521,7 @@ class Channel:
         elif isinstance(msg, p.Announce):
             peer.vehicles = set(msg.vehicles)
             peer.mission_vehicles = set(msg.mission_vehicles)
+            self._members = None
             self._announce_up()
             self._progress()
         elif isinstance(msg, p.Bye):
@@ -455,7 +542,7 @@ class Channel:
         self._etas[msg.vehicle] = msg
         if not waiting:
             del self._wait_ac[peer]
-            peer.deadline_ns = None
+            self._set_deadline(peer, None)
         self._progress()
 
     def _on_enqueue(self, peer: _Peer, msg: p.Enqueue) -> None:
@@ -563,7 +650,7 @@ class Channel:
             data = p.encode_many([m if m.count == n else _with_count(m, n) for m in msgs])
             self._wait_ac[peer] = {m.vehicle for m in msgs}
             self._expect_vehicles |= self._wait_ac[peer]
-            peer.deadline_ns = now + int(self.config.stall_timeout_s * NS_PER_S)
+            self._set_deadline(peer, now + int(self.config.stall_timeout_s * NS_PER_S))
             peer.waiting_for = f"END-TICK-AC of tick {self._tick}"
             self._send_raw(peer, data)
 
@@ -576,7 +663,7 @@ class Channel:
         self._trace("bt0", None)
         for peer in list(self._active(p.PeerKind.TYPE0, p.PeerKind.CHILD)):
             self._wait0.add(peer)
-            peer.deadline_ns = deadline
+            self._set_deadline(peer, deadline)
             peer.waiting_for = f"END-TICK-0 of tick {self._tick}"
             self._send_raw(peer, msg)
 
@@ -592,7 +679,7 @@ class Channel:
         self._trace("bt1", None)
         for peer in list(self._active(p.PeerKind.TYPE1, p.PeerKind.CHILD)):
             self._wait1.add(peer)
-            peer.deadline_ns = deadline
+            self._set_deadline(peer, deadline)
             peer.waiting_for = f"END-TICK-1 of tick {self._tick}"
             self._send_raw(peer, data)
 
@@ -642,7 +729,9 @@ class Channel:
     def _finish_tick(self) -> None:
         assert self._up is not None
         self._trace("eta_up", None)
-        if self._etas:
+        if self._local:
+            self._tick_result = [self._etas[v] for v in sorted(self._etas)]
+        elif self._etas:
             self._send_raw(self._up, p.encode_many([self._etas[v] for v in sorted(self._etas)]))
         self._end_tick_state()
 
@@ -653,17 +742,31 @@ class Channel:
 
     # -- faults and the watchdog ---------------------------------------------------------------
 
+    def _set_deadline(self, peer: _Peer, deadline_ns: int | None) -> None:
+        peer.deadline_ns = deadline_ns
+        if deadline_ns is None:
+            self._deadlines.pop(peer, None)
+        else:
+            self._deadlines[peer] = deadline_ns
+
+    def _earliest(self) -> int | None:
+        earliest = min(self._deadlines.values()) if self._deadlines else None
+        if self._join_deadline is not None and (earliest is None or self._join_deadline < earliest):
+            earliest = self._join_deadline
+        return earliest
+
     def _next_timeout(self) -> float | None:
-        deadlines = [peer.deadline_ns for peer in self._peers.values() if peer.deadline_ns is not None]
-        if self._join_deadline is not None:
-            deadlines.append(self._join_deadline)
-        if not deadlines:
+        earliest = self._earliest()
+        if earliest is None:
             return None
-        return max(0.0, (min(deadlines) - real_monotonic_ns()) / NS_PER_S)
+        return max(0.0, (earliest - real_monotonic_ns()) / NS_PER_S)
 
     def _check_deadlines(self) -> None:
+        earliest = self._earliest()
         now = real_monotonic_ns()
-        for peer in list(self._peers.values()):
+        if earliest is None or now < earliest:
+            return
+        for peer in list(self._deadlines):
             if peer.deadline_ns is not None and now >= peer.deadline_ns and not peer.closed:
                 limit = self.config.stall_timeout_s if peer.kind is not None else self.config.handshake_timeout_s
                 self._peer_fault(peer, f"stalled: no {peer.waiting_for} within {limit:g} s", p.ErrorCode.STALLED)
@@ -714,7 +817,8 @@ class Channel:
         if peer.closed:
             return
         peer.closed = True
-        peer.deadline_ns = None
+        self._members = None
+        self._set_deadline(peer, None)
         self._wait0.discard(peer)
         self._wait1.discard(peer)
         self._wait_ac.pop(peer, None)
@@ -742,6 +846,9 @@ class Channel:
                 peer.sock.send(data)
 
     def _close_all(self) -> None:
+        if self._closed_all:
+            return
+        self._closed_all = True
         for peer in list(self._peers.values()):
             self._close_peer(peer)
         for s in (self._server, self._wake_r, self._wake_w):

@@ -24,12 +24,20 @@ from pathlib import Path
 from typing import Any
 
 from harness.simclock import protocol as p
+from harness.simclock.channel import Channel
 from harness.simclock.client import ChannelClient, ChannelClosed
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep
 
 log = logging.getLogger(__name__)
 
 Event = dict[str, Any]
+_ready_file: Path | None = None
+
+
+def _connected(client: ChannelClient) -> ChannelClient:
+    if _ready_file is not None:
+        _ready_file.touch()
+    return client
 
 
 def _busy(work_us: float) -> None:
@@ -100,10 +108,25 @@ def run_fake_physics(
     return stats
 
 
+def run_fake_physics_local(channel: Channel, vehicles: int, ticks: int, *, tick_hz: float = 250.0) -> PhysicsStats:
+    """The same as :func:`run_fake_physics`, owning the root ``channel`` in this process."""
+    tick_ns = round(NS_PER_S / tick_hz)
+    stats = PhysicsStats()
+    for k in range(ticks):
+        t_ns = k * tick_ns
+        sent = real_monotonic_ns()
+        etas = channel.step([p.BeginTickAC(t_ns, k, v, vehicles, fake_position(v, k), b"") for v in range(vehicles)])
+        if len(etas) != vehicles or any(e.t_ns != t_ns for e in etas):
+            raise AssertionError(f"tick {k}: wrong END-TICK-AC {etas}")
+        stats.tick_wall_ns.append(real_monotonic_ns() - sent)
+        stats.ticks += 1
+    return stats
+
+
 def run_fake_autopilot(address: str, vehicles: Sequence[int], *, name: str = "autopilot") -> list[Event]:
     """Answer every BEGIN-TICK-AC with a hover command; return the trace."""
     events: list[Event] = []
-    client = ChannelClient.connect(address, p.PeerKind.AUTOPILOT, name, vehicles=tuple(vehicles))
+    client = _connected(ChannelClient.connect(address, p.PeerKind.AUTOPILOT, name, vehicles=tuple(vehicles)))
     try:
         while True:
             out: list[p.Message] = []
@@ -132,7 +155,7 @@ def run_fake_type0(
 ) -> list[Event]:
     """A type-0 subscriber: on each BEGIN-TICK-0, work, optionally ENQUEUE a packet, END-TICK-0."""
     events: list[Event] = []
-    client = ChannelClient.connect(address, p.PeerKind.TYPE0, name, vehicle=vehicle)
+    client = _connected(ChannelClient.connect(address, p.PeerKind.TYPE0, name, vehicle=vehicle))
     seq = 0
     try:
         while True:
@@ -168,7 +191,7 @@ def run_fake_type1(
 ) -> list[Event]:
     """A type-1 subscriber: on each BEGIN-TICK-1, record positions and packets, deliver, END-TICK-1."""
     events: list[Event] = []
-    client = ChannelClient.connect(address, p.PeerKind.TYPE1, name)
+    client = _connected(ChannelClient.connect(address, p.PeerKind.TYPE1, name))
     try:
         while True:
             for msg in client.recv():
@@ -218,7 +241,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--stall-at-tick", type=int, default=None)
     ap.add_argument("--never-answer", action="store_true")
     ap.add_argument("--trace", type=Path, default=None, help="write the trace here as JSON")
+    ap.add_argument("--ready", type=Path, default=None, help="create this file once subscribed")
     a = ap.parse_args(argv)
+    global _ready_file
+    _ready_file = a.ready
     logging.basicConfig(level=logging.WARNING)
     name = a.name or a.role
     result: Any
