@@ -167,7 +167,7 @@ class MavlinkServer:
             now = self._wall_ns()
             for i, link in enumerate(self.links):
                 if link.sock in ready:
-                    for data, addr in link.receive(512, now):
+                    for data, addr in link.receive(512):
                         self._on_datagram(i, data, addr, now)
             try:
                 self._tick(self._wall_ns())
@@ -213,6 +213,7 @@ class MavlinkServer:
                 self._count("refused_bad_signature")
             elif d.message is not None:
                 self._count("frames_rx")
+                self.links[link].heard(addr, now)
                 m = d.message
                 origin = Origin(link, addr, m.get_srcSystem(), m.get_srcComponent())
                 try:

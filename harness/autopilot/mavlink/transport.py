@@ -1,8 +1,8 @@
 """UDP links of one vehicle: the API link (to the mission script's port) and the GCS link.
 
 Each link is one UDP socket. It always sends to its configured remote (``14540 + i`` for the API link,
-``14550`` for the GCS link, like PX4 SITL) and also to every peer that sent it something and was heard
-within the last ``peer_timeout_ns`` of wall time (MAVSDK forgets a UDP peer silent for 10 s; so do we).
+``14550`` for the GCS link, like PX4 SITL) and also to every peer that sent it a valid frame
+within the last ``peer_timeout_ns`` of wall time (garbage or unsigned senders are not peers) (MAVSDK forgets a UDP peer silent for 10 s; so do we).
 Replies go to the address a message came from. Socket errors (ICMP port unreachable when nobody listens,
 full buffers) are counted, never raised.
 """
@@ -102,8 +102,8 @@ class UdpLink:
     def fileno(self) -> int:
         return self.sock.fileno()
 
-    def receive(self, max_datagrams: int, now_ns: int) -> Iterator[tuple[bytes, Address]]:
-        """Up to ``max_datagrams`` waiting datagrams; notes each sender as a peer heard at ``now_ns``."""
+    def receive(self, max_datagrams: int) -> Iterator[tuple[bytes, Address]]:
+        """Up to ``max_datagrams`` waiting datagrams with their senders."""
         for _ in range(max_datagrams):
             try:
                 data, addr = self.sock.recvfrom(_RECV_SIZE)
@@ -115,9 +115,11 @@ class UdpLink:
                     self.recv_errors += 1
                     log.debug("%s link: receive error %s", self.name, e)
                 continue
-            peer = (addr[0], addr[1])
-            self._peers[peer] = now_ns
-            yield data, peer
+            yield data, (addr[0], addr[1])
+
+    def heard(self, peer: Address, now_ns: int) -> None:
+        """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too."""
+        self._peers[peer] = now_ns
 
     def destinations(self, now_ns: int) -> list[Address]:
         """The remote and the live peers (forgets peers silent longer than the timeout)."""

@@ -1,0 +1,132 @@
+"""Mission protocol over real UDP: upload / download round trips for missions, fences and rally points,
+retries on the wall clock, clear, set current; then a flown mission reports every item reached."""
+
+from __future__ import annotations
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+
+from harness.autopilot.api import MissionKind
+from tests.mavlink.conftest import Gcs, Rig
+
+M = mavlink2
+LAT0, LON0 = 47.397742, 8.545594
+REL = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+
+
+def _items(kind: int) -> list[tuple[int, int, float, float, float, float, int, int, float]]:
+    """(frame, command, p1..p4, x, y, z) per item."""
+    if kind == 0:
+        return [
+            (REL, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, float("nan"), int(LAT0 * 1e7), int(LON0 * 1e7), 5.0),
+            (REL, M.MAV_CMD_NAV_WAYPOINT, 0, 1.5, 0, float("nan"), int((LAT0 + 5e-5) * 1e7), int(LON0 * 1e7), 6.0),
+            (M.MAV_FRAME_MISSION, M.MAV_CMD_DO_CHANGE_SPEED, 1, 3.0, -1, 0, 0, 0, 0.0),
+            (
+                REL,
+                M.MAV_CMD_NAV_WAYPOINT,
+                0,
+                0,
+                0,
+                float("nan"),
+                int((LAT0 + 5e-5) * 1e7),
+                int((LON0 + 7e-5) * 1e7),
+                6.0,
+            ),
+            (REL, M.MAV_CMD_NAV_LAND, 0, 0, 0, float("nan"), int((LAT0 + 5e-5) * 1e7), int((LON0 + 7e-5) * 1e7), 0.0),
+        ]
+    if kind == 1:
+        pts = [(0, 0), (0, 4e-4), (4e-4, 4e-4), (4e-4, 0)]
+        poly = [
+            (M.MAV_FRAME_GLOBAL_INT, 5001, 4, 0, 0, 0, int((LAT0 + a) * 1e7), int((LON0 + b) * 1e7), 0.0)
+            for a, b in pts
+        ]
+        return [*poly, (M.MAV_FRAME_GLOBAL_INT, 5004, 20.0, 0, 0, 0, int(LAT0 * 1e7), int(LON0 * 1e7), 0.0)]
+    return [(REL, 5100, 0, 0, 0, 0, int((LAT0 + 1e-4) * 1e7), int(LON0 * 1e7), 15.0)]
+
+
+def upload(gcs: Gcs, kind: int, items: list, drop_first_request: bool = False) -> object:
+    gcs.send(gcs.mav.mission_count_encode(1, 1, len(items), kind))
+    dropped = not drop_first_request
+    while True:
+        m = gcs.recv("MISSION_REQUEST_INT", 4.0)
+        if not dropped:
+            dropped = True  # ignore it: the vehicle must ask again after its wall-clock timeout
+            continue
+        assert m.mission_type == kind and m.target_system == 245
+        f, c, p1, p2, p3, p4, x, y, z = items[m.seq]
+        gcs.send(gcs.mav.mission_item_int_encode(1, 1, m.seq, f, c, 0, 1, p1, p2, p3, p4, x, y, z, kind))
+        if m.seq == len(items) - 1:
+            return gcs.recv("MISSION_ACK", 3.0, lambda a: a.mission_type == kind)
+
+
+def download(gcs: Gcs, kind: int) -> list:
+    gcs.send(gcs.mav.mission_request_list_encode(1, 1, kind))
+    count = gcs.recv("MISSION_COUNT", 3.0, lambda m: m.mission_type == kind).count
+    got = []
+    for seq in range(count):
+        gcs.send(gcs.mav.mission_request_int_encode(1, 1, seq, kind))
+        got.append(gcs.recv("MISSION_ITEM_INT", 3.0, lambda m, s=seq: m.seq == s))
+    gcs.send(gcs.mav.mission_ack_encode(1, 1, M.MAV_MISSION_ACCEPTED, kind))
+    return got
+
+
+def _same(item: tuple, m: object) -> bool:
+    f, c, p1, p2, p3, p4, x, y, z = item
+    vals = (m.frame, m.command, m.param1, m.param2, m.param3, m.param4, m.x, m.y, m.z)  # type: ignore[attr-defined]
+    return vals == pytest.approx((f, c, p1, p2, p3, p4, x, y, z), nan_ok=True)
+
+
+@pytest.mark.parametrize("kind", [0, 1, 2])
+def test_upload_download_round_trip(gcs: Gcs, idle_rig: Rig, kind: int) -> None:
+    items = _items(kind)
+    ack = upload(gcs, kind, items)
+    assert ack.type == M.MAV_MISSION_ACCEPTED  # type: ignore[attr-defined]
+    assert len(idle_rig.ap.download_mission(MissionKind(kind))) == len(items)
+    back = download(gcs, kind)
+    assert len(back) == len(items)
+    assert all(_same(i, m) for i, m in zip(items, back, strict=True))
+    assert all(m.mission_type == kind for m in back)
+
+
+def test_upload_retries_a_lost_request_and_clear_all(gcs: Gcs, idle_rig: Rig) -> None:
+    ack = upload(gcs, 0, _items(0), drop_first_request=True)
+    assert ack.type == M.MAV_MISSION_ACCEPTED  # type: ignore[attr-defined]
+    gcs.send(gcs.mav.mission_set_current_encode(1, 1, 3))
+    assert gcs.recv("MISSION_CURRENT", 3.0, lambda m: m.seq == 3).total == 5
+    gcs.send(gcs.mav.mission_clear_all_encode(1, 1, 0))
+    assert gcs.recv("MISSION_ACK").type == M.MAV_MISSION_ACCEPTED
+    assert idle_rig.ap.download_mission() == ()
+
+
+def test_refused_mission_gets_an_error_ack_and_reason(gcs: Gcs, idle_rig: Rig) -> None:
+    bad = [(REL, 31000, 0, 0, 0, 0, int(LAT0 * 1e7), int(LON0 * 1e7), 5.0)]  # an unknown command
+    ack = upload(gcs, 0, bad)
+    assert ack.type == M.MAV_MISSION_UNSUPPORTED  # type: ignore[attr-defined]
+    assert "31000" in gcs.recv("STATUSTEXT").text
+    gcs.send(gcs.mav.mission_request_int_encode(1, 1, 7, 0))
+    assert gcs.recv("MISSION_ACK").type == M.MAV_MISSION_INVALID_SEQUENCE
+
+
+def test_flown_mission_reports_every_item_reached(gcs: Gcs, flying_rig: Rig) -> None:
+    items = _items(0)
+    assert upload(gcs, 0, items).type == M.MAV_MISSION_ACCEPTED  # type: ignore[attr-defined]
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0).result == M.MAV_RESULT_ACCEPTED
+    assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 4, 4).result == M.MAV_RESULT_ACCEPTED  # AUTO.MISSION
+    reached: set[int] = set()
+    complete = None
+    msgs = gcs.collect(0.1)
+    for _ in range(300):  # up to ~30 s of wall time (the sim runs at up to 4x)
+        for _, m in msgs:
+            if m.get_type() == "MISSION_ITEM_REACHED":
+                reached.add(m.seq)
+            if m.get_type() == "MISSION_CURRENT" and m.mission_state == M.MISSION_STATE_COMPLETE:
+                complete = m
+        if reached == set(range(len(items))) and complete is not None:
+            break
+        msgs = gcs.collect(0.1, {"MISSION_ITEM_REACHED", "MISSION_CURRENT"})
+    assert reached == set(range(len(items)))
+    assert complete is not None
+    ext = gcs.recv("EXTENDED_SYS_STATE", 20.0, lambda m: m.landed_state == M.MAV_LANDED_STATE_ON_GROUND)
+    assert ext is not None
+    n, e, _ = flying_rig.sim.pos
+    assert abs(n - 5e-5 * 111_195) < 2.0 and abs(e - 7e-5 * 111_195 * 0.6774) < 2.0
