@@ -18,13 +18,13 @@ import subprocess
 import sys
 import time
 
+from harness.fdm.physics import Physics, PhysicsConfig
+
 from harness.autopilot.api import FlightMode
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.fdm.frame import encode_frame
-from harness.fdm.physics import Physics, PhysicsConfig
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
-from harness.simclock.client import ChannelClient
 
 TICK_HZ = 250
 SUBSTEP_HZ = 1000
@@ -39,11 +39,9 @@ def in_process(n: int, seconds: float) -> dict[str, float]:
     phys = _physics(n)
     aps = [Autopilot(AutopilotConfig(vehicle=v)) for v in range(n)]
     frames = phys.frames()
-    ticks = 0
     # get everyone up (not measured)
-    for _ in range(TICK_HZ * 25):
+    for ticks in range(1, TICK_HZ * 25):
         frames = phys.step([ap.step(f) for ap, f in zip(aps, frames, strict=True)])
-        ticks += 1
         if ticks % 25 == 0:
             for ap in aps:
                 s = ap.state()
@@ -74,20 +72,31 @@ def in_process(n: int, seconds: float) -> dict[str, float]:
 
 
 def through_channel(n: int, seconds: float, per_vehicle_process: bool) -> dict[str, float]:
-    ch = Channel(ChannelConfig(address="tcp://127.0.0.1:0", tick_hz=TICK_HZ)).start()
+    """Root channel inside this (physics) process, autopilot hosts as separate processes over TCP."""
+    ch = Channel(ChannelConfig(address="tcp://127.0.0.1:0", tick_hz=TICK_HZ, stall_timeout_s=30))
+    ch.attach_physics()
     groups = [[v] for v in range(n)] if per_vehicle_process else [list(range(n))]
-    env = dict(os.environ)
     procs = [
         subprocess.Popen(
-            [sys.executable, "-m", "harness.autopilot.host", "--address", ch.address,
-             "--vehicles", ",".join(map(str, g)), "--takeoff-alt", str(ALT_M)],
-            env=env,
+            [
+                sys.executable,
+                "-m",
+                "harness.autopilot.host",
+                "--address",
+                ch.address,
+                "--vehicles",
+                ",".join(map(str, g)),
+                "--takeoff-alt",
+                str(ALT_M),
+            ],
+            env=dict(os.environ),
         )
         for g in groups
     ]
-    phys = _physics(n)
-    client = ChannelClient.connect(ch.address, p.PeerKind.PHYSICS, "physics", vehicles=tuple(range(n)))
     try:
+        if not ch.wait_for(lambda subs: len(subs) == len(procs), 60):
+            raise RuntimeError("autopilot hosts did not join within 60 s")
+        phys = _physics(n)
         frames = phys.frames()
         warm = TICK_HZ * 20
         total = warm + round(seconds * TICK_HZ)
@@ -95,27 +104,22 @@ def through_channel(n: int, seconds: float, per_vehicle_process: bool) -> dict[s
         for k in range(total):
             if k == warm:
                 t0 = time.perf_counter_ns()
-            client.send_many(
+            etas = ch.step(
                 [p.BeginTickAC(f.t_ns, k, v, n, f.truth.pos_ned_m, encode_frame(f)) for v, f in enumerate(frames)]
             )
             motors: list[tuple[float, ...]] = [()] * n
-            got = 0
-            while got < n:
-                for msg in client.recv():
-                    if isinstance(msg, p.EndTickAC):
-                        motors[msg.vehicle] = msg.motors
-                        got += 1
+            for e in etas:
+                motors[e.vehicle] = e.motors
             frames = phys.step(motors)
         wall_ns = time.perf_counter_ns() - t0
         alts = [-f.truth.pos_ned_m[2] for f in frames]
     finally:
-        client.close("benchmark done")
+        ch.close("benchmark done")
         for pr in procs:
             try:
                 pr.wait(10)
             except subprocess.TimeoutExpired:
                 pr.kill()
-        ch.stop()
     return {"rtf": seconds / (wall_ns / 1e9), "min_alt_m": min(alts), "max_alt_m": max(alts)}
 
 
@@ -125,21 +129,27 @@ def main() -> None:
     ap.add_argument("--vehicles", type=int, nargs="+", default=[1, 10])
     ap.add_argument("--no-channel", action="store_true")
     args = ap.parse_args()
-    print(f"rates: physics sub-step {SUBSTEP_HZ} Hz, control tick {TICK_HZ} Hz; hover at {ALT_M} m, "
-          f"{args.seconds:g} s of sim time measured; machine shared (noisy)")
+    print(
+        f"rates: physics sub-step {SUBSTEP_HZ} Hz, control tick {TICK_HZ} Hz; hover at {ALT_M} m, "
+        f"{args.seconds:g} s of sim time measured; machine shared (noisy)"
+    )
     for n in args.vehicles:
         r = in_process(n, args.seconds)
-        print(f"in-process  {n:3d} vehicle(s): autopilot {r['autopilot_us_per_vehicle_tick']:6.1f} us/vehicle/tick, "
-              f"physics {r['physics_us_per_vehicle_tick']:6.1f} us/vehicle/tick, RTF {r['rtf']:7.1f}x "
-              f"(alt {r['min_alt_m']:.2f}-{r['max_alt_m']:.2f} m)")
+        print(
+            f"in-process  {n:3d} vehicle(s): autopilot {r['autopilot_us_per_vehicle_tick']:6.1f} us/vehicle/tick, "
+            f"physics {r['physics_us_per_vehicle_tick']:6.1f} us/vehicle/tick, RTF {r['rtf']:7.1f}x "
+            f"(alt {r['min_alt_m']:.2f}-{r['max_alt_m']:.2f} m)"
+        )
         if args.no_channel:
             continue
         layouts = [False, True] if n > 1 else [False]
         for per_vehicle in layouts:
             r = through_channel(n, args.seconds, per_vehicle)
             label = "process per vehicle" if per_vehicle else "one host process  "
-            print(f"channel     {n:3d} vehicle(s), {label}: RTF {r['rtf']:7.1f}x "
-                  f"(alt {r['min_alt_m']:.2f}-{r['max_alt_m']:.2f} m)")
+            print(
+                f"channel     {n:3d} vehicle(s), {label}: RTF {r['rtf']:7.1f}x "
+                f"(alt {r['min_alt_m']:.2f}-{r['max_alt_m']:.2f} m)"
+            )
 
 
 if __name__ == "__main__":

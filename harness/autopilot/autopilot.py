@@ -34,6 +34,7 @@ from harness.autopilot.navigator import Orbit
 from harness.autopilot.params import Params
 from harness.autopilot.snapshot import build_state
 from harness.autopilot.validate import check_mission, finite
+from harness.errors import ScenarioError
 from harness.fdm.frame import SensorFrame
 from harness.simclock.clock import Clock, WallClock
 
@@ -73,8 +74,10 @@ class Autopilot:
         self.home_ned: tuple[float, float, float] | None = None
         self.failsafe = ""
         self._offboard_wall_ns = -(10**18)
-        self._super_every = max(1, round(250.0 / cfg.supervise_hz))
-        self._tick = 0
+        if not cfg.supervise_hz > 0:
+            raise ScenarioError(f"autopilot {cfg.vehicle}: supervise_hz must be > 0, got {cfg.supervise_hz}")
+        self._super_period_ns = round(1e9 / cfg.supervise_hz)
+        self._next_super_ns = 0
         self._armed_ns = 0
         self._landed_since_ns: int | None = None
         self._fence_breached = False
@@ -85,8 +88,8 @@ class Autopilot:
         with self._lock:
             c = self.core
             motors = c.step(frame)
-            self._tick += 1
-            if self._tick % self._super_every == 0:
+            if c.t_ns >= self._next_super_ns:
+                self._next_super_ns = c.t_ns + self._super_period_ns
                 self._supervise()
             nav = c.nav
             if nav.new_reached:
