@@ -239,8 +239,8 @@ class AttitudeControl:
         mz = qrw * dz - qrx * dy + qry * dx - qrz * dw
         if mw < 0.0:
             mw, mz = -mw, -mz
-        mw = min(mw, 1.0)
-        mz = max(-1.0, min(mz, 1.0))
+        mw = 1.0 if mw > 1.0 else mw
+        mz = -1.0 if mz < -1.0 else (1.0 if mz > 1.0 else mz)
         a = self.yaw_w
         pw, pz = math.cos(a * math.acos(mw)), math.sin(a * math.asin(mz))
         # qd' = qr * (pw, 0, 0, pz)
@@ -256,15 +256,16 @@ class AttitudeControl:
         s = 2.0 if ew >= 0.0 else -2.0
         rr = self.kr * s * erx
         rp = self.kp * s * ery
-        ry = self.ky * s * erz / max(a, 1e-3)
+        ry = self.ky * s * erz / (a if a > 1e-3 else 1e-3)
         if yaw_rate_ff:
             # feed-forward about the world z axis, expressed in body axes
             rr += yaw_rate_ff * ex
             rp += yaw_rate_ff * ey
             ry += yaw_rate_ff * ez
-        rr = max(-self.max_r, min(rr, self.max_r))
-        rp = max(-self.max_p, min(rp, self.max_p))
-        ry = max(-self.max_y, min(ry, self.max_y))
+        mr, mp, my = self.max_r, self.max_p, self.max_y
+        rr = -mr if rr < -mr else (mr if rr > mr else rr)
+        rp = -mp if rp < -mp else (mp if rp > mp else rp)
+        ry = -my if ry < -my else (my if ry > my else ry)
         return (rr, rp, ry)
 
 
