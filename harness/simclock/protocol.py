@@ -164,11 +164,23 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
     """END-TICK-AC: autopilot -> channel -> physics: the motor commands for the next interval.
 
     ``motors`` are normalised commands in [0, 1] in PX4 quad-X motor order; physics validates them.
+    ``status`` is the autopilot's state for recording, packed by :func:`pack_status`.
     """
 
     t_ns: int
     vehicle: int
     motors: tuple[float, ...]
+    status: int = 0
+
+
+def pack_status(armed: bool, landed_state: int, main_mode: int, sub_mode: int) -> int:
+    """END-TICK-AC ``status``: bit 0 armed, bits 1-3 MAV_LANDED_STATE, 8-15 PX4 main mode, 16-23 sub mode."""
+    return (1 if armed else 0) | ((landed_state & 0x7) << 1) | ((main_mode & 0xFF) << 8) | ((sub_mode & 0xFF) << 16)
+
+
+def unpack_status(status: int) -> tuple[bool, int, int, int]:
+    """(armed, landed_state, main_mode, sub_mode) from an END-TICK-AC ``status``."""
+    return bool(status & 1), (status >> 1) & 0x7, (status >> 8) & 0xFF, (status >> 16) & 0xFF
 
 
 class BeginTick0(_Msg, tag="BT0", frozen=True):
