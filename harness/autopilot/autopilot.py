@@ -37,6 +37,7 @@ from harness.autopilot.validate import check_mission, finite
 from harness.errors import ScenarioError
 from harness.fdm.frame import SensorFrame
 from harness.simclock.clock import Clock, WallClock
+from harness.simclock.protocol import pack_status
 
 _NO_RC = frozenset({FlightMode.MANUAL, FlightMode.STABILIZED})
 
@@ -200,6 +201,12 @@ class Autopilot:
         self._cache = None
 
     # ------------------------------------------------------------------ state
+    def packed_status(self) -> int:
+        """Armed, landed state and PX4 mode packed for END-TICK-AC (``protocol.pack_status``)."""
+        c = self.core
+        mode = c.mode.value
+        return pack_status(c.armed, int(c.landed_state) if c.armed else 1, int(mode[0]), int(mode[1]))
+
     def state(self) -> VehicleState:
         with self._lock:
             if self._cache is None:

@@ -45,6 +45,7 @@ def test_host_flies_two_vehicles_through_the_channel() -> None:
         sims = [QuadSim(np.random.default_rng(v)) for v in (0, 1)]
         phys = ChannelClient.connect(ch.address, p.PeerKind.PHYSICS, "physics", vehicles=(0, 1))
         motors: dict[int, tuple[float, ...]] = {0: (0.0,) * 4, 1: (0.0,) * 4}
+        status: dict[int, int] = {}
         try:
             for k in range(250 * 12):
                 if k == 500:  # 2 s: both ready; command from outside the lockstep loop, as MAVLink would
@@ -64,6 +65,7 @@ def test_host_flies_two_vehicles_through_the_channel() -> None:
                         if isinstance(msg, p.EndTickAC):
                             assert msg.t_ns == frames[msg.vehicle].t_ns
                             motors[msg.vehicle] = msg.motors
+                            status[msg.vehicle] = msg.status
                             got += 1
         finally:
             phys.close("done")
@@ -72,6 +74,8 @@ def test_host_flies_two_vehicles_through_the_channel() -> None:
         assert attached == [0, 1] and all(h.closed for h in handles)
         assert abs(sims[0].pos[2] + 3.0) < 0.3 and abs(sims[1].pos[2] + 5.0) < 0.3
         assert aps[0].state().mode == FlightMode.HOLD
+        armed, landed, main, sub = p.unpack_status(status[1])
+        assert armed and landed == 2 and FlightMode.from_px4(main, sub) == FlightMode.HOLD
     finally:
         ch.stop()
 
