@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from harness.errors import ScenarioError
-from harness.simclock import patch
+from harness.simclock import mavsdk_compat, patch
 from harness.simclock import protocol as p
 from harness.simclock.client import ChannelClient, ChannelClosed
 from harness.simclock.clock import real_sleep
@@ -88,7 +88,32 @@ class _ClockThread(threading.Thread):
         _exit(EXIT_RUN_ENDED)
 
 
+def _children(pid: int) -> list[int]:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(x) for x in f.read().split()]
+    except OSError:
+        return []
+
+
+def _kill_descendants() -> None:
+    """Stop whatever the script started (mavsdk_server for the gRPC API): no orphans."""
+    import signal
+
+    todo, seen = _children(os.getpid()), []
+    while todo:
+        pid = todo.pop()
+        seen.append(pid)
+        todo += _children(pid)
+    for pid in seen:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+
+
 def _exit(code: int) -> None:
+    _kill_descendants()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -143,6 +168,10 @@ def run_mission(spec: MissionSpec) -> int:
     os.environ.setdefault("HARNESS_VEHICLE", str(spec.vehicle))
     os.environ.setdefault("HARNESS_SYSID", str(spec.vehicle + 1))
     patch.install(rt)
+    port = int(os.environ.get("HARNESS_MAVLINK_PORT", str(mavsdk_compat.STANDARD_PORT + max(spec.vehicle, 0))))
+    api = mavsdk_compat.install(spec.script, port, os.environ.get("HARNESS_MAVSDK_API") or None)
+    if api:
+        log.info("mission %s: MAVSDK %s API, vehicle port %d", spec.name, api, port)
     clock = _ClockThread(client, rt)
     clock.start()
     rt.wait_first_phase()

@@ -1,0 +1,160 @@
+"""MAVSDK in mission processes: both APIs, and every script pointed at its own vehicle.
+
+- The native ``mavsdk`` ≥ 4 (ctypes) and the old gRPC API both run unmodified. An old script does
+  ``from mavsdk import System`` and ``await drone.connect(...)``; with ``mavsdk`` 4 installed that
+  name belongs to the new API, so for such a script the runner makes ``mavsdk`` (and ``mavsdk.<plugin>``)
+  resolve to ``mavsdk_grpc`` (PyPI ``mavsdk-grpc``), which is the old API under a new name.
+- Scripts written for one vehicle connect to the standard port 14540 (``udpin://0.0.0.0:14540``,
+  ``udp://:14540``). The runner rewrites that port to the vehicle's own API port, so one unmodified script
+  flies every vehicle of a swarm and parallel runs never collide.
+- The gRPC API starts a ``mavsdk_server`` per ``System()`` on gRPC port 50051 by default; with several
+  missions on one machine those collide, so the default becomes a free port.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.machinery
+import logging
+import re
+import socket
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+STANDARD_PORT = 14540
+_URL = re.compile(r"^(?P<scheme>[a-z]+)://(?P<host>\[[^\]]*\]|[^:/]*)(?::(?P<port>\d+))?(?P<rest>.*)$")
+
+
+def rewrite_url(url: str, vehicle_port: int) -> str:
+    """``udpin://0.0.0.0:14540`` → ``udpin://0.0.0.0:<vehicle_port>``; other ports stay as they are."""
+    m = _URL.match(url)
+    if m is None or m.group("scheme") == "serial":
+        return url
+    port = m.group("port")
+    if port is not None and int(port) != STANDARD_PORT:
+        return url
+    if port is None and m.group("scheme") not in ("udp", "udpin"):
+        return url
+    return f"{m.group('scheme')}://{m.group('host')}:{vehicle_port}{m.group('rest')}"
+
+
+def detect_api(source: str) -> str:
+    """'grpc' for scripts written against the old API, 'native' for mavsdk ≥ 4, '' without MAVSDK."""
+    if "mavsdk" not in source:
+        return ""
+    if re.search(r"\bMavsdk\s*\(|mavsdk\.asyncio|Configuration\s*\(", source):
+        return "native"
+    if re.search(r"\bimport\s+mavsdk_grpc\b|from\s+mavsdk_grpc\b", source):
+        return "grpc-named"
+    return "grpc"
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class _AliasFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Resolves ``mavsdk`` and ``mavsdk.X`` to ``mavsdk_grpc`` and ``mavsdk_grpc.X``."""
+
+    def find_spec(self, fullname: str, path: Sequence[str] | None, target: ModuleType | None = None) -> Any:
+        if fullname == "mavsdk" or fullname.startswith("mavsdk."):
+            return importlib.machinery.ModuleSpec(fullname, self)
+        return None
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
+        return importlib.import_module("mavsdk_grpc" + spec.name[len("mavsdk") :])
+
+    def exec_module(self, module: ModuleType) -> None:
+        pass
+
+
+def _patch_grpc(vehicle_port: int) -> None:
+    system_mod = importlib.import_module("mavsdk_grpc.system")
+    System = system_mod.System
+    if getattr(System, "_harness_patched", False):
+        return
+    orig_init: Callable[..., None] = System.__init__
+    orig_connect = System.connect
+
+    def __init__(
+        self: Any, mavsdk_server_address: str | None = None, port: int | None = None, *a: Any, **kw: Any
+    ) -> None:
+        if port is None or (port == 50051 and mavsdk_server_address is None):
+            port = _free_tcp_port()
+        orig_init(self, mavsdk_server_address, port, *a, **kw)
+
+    async def connect(self: Any, system_address: str | None = None) -> Any:
+        url = rewrite_url(system_address or f"udpin://0.0.0.0:{STANDARD_PORT}", vehicle_port)
+        log.info("mavsdk (gRPC API): connecting to %s", url)
+        return await orig_connect(self, system_address=url)
+
+    System.__init__ = __init__
+    System.connect = connect
+    System._harness_patched = True
+
+
+def _patch_native(vehicle_port: int) -> None:
+    for modname in ("mavsdk.mavsdk", "mavsdk.asyncio.mavsdk"):
+        try:
+            mod = importlib.import_module(modname)
+        except ImportError:
+            continue
+        cls = getattr(mod, "Mavsdk", None)
+        if cls is None or getattr(cls, "_harness_patched", False):
+            continue
+        for name in ("add_any_connection", "add_any_connection_with_handle"):
+            orig = getattr(cls, name, None)
+            if orig is None:
+                continue
+            setattr(cls, name, _wrap_connection(orig, vehicle_port))
+        cls._harness_patched = True
+
+
+def _wrap_connection(orig: Callable[..., Any], vehicle_port: int) -> Callable[..., Any]:
+    import inspect
+
+    if inspect.iscoroutinefunction(orig):
+
+        async def async_wrapper(self: Any, url: str, *a: Any, **kw: Any) -> Any:
+            return await orig(self, rewrite_url(url, vehicle_port), *a, **kw)
+
+        return async_wrapper
+
+    def wrapper(self: Any, url: str, *a: Any, **kw: Any) -> Any:
+        return orig(self, rewrite_url(url, vehicle_port), *a, **kw)
+
+    return wrapper
+
+
+def install(script: Path, vehicle_port: int, api: str | None = None) -> str:
+    """Prepare MAVSDK for ``script``; returns the API used ('native', 'grpc' or '' for none)."""
+    source = script.read_text(errors="replace")
+    api = api or detect_api(source)
+    if api in ("grpc", "grpc-named"):
+        try:
+            importlib.import_module("mavsdk_grpc")
+        except ImportError:
+            from harness.errors import ScenarioError
+
+            raise ScenarioError(
+                f"{script} uses the old gRPC MAVSDK API (from mavsdk import System … await drone.connect()); "
+                "install it with: pip install mavsdk-grpc"
+            ) from None
+        if api == "grpc":
+            for name in [m for m in sys.modules if m == "mavsdk" or m.startswith("mavsdk.")]:
+                del sys.modules[name]
+            sys.meta_path.insert(0, _AliasFinder())
+        _patch_grpc(vehicle_port)
+        return "grpc"
+    if api == "native":
+        _patch_native(vehicle_port)
+        return "native"
+    return ""
