@@ -1,0 +1,112 @@
+"""The autopilot process of a run (SITL-like): autopilots in lockstep, each with its MAVLink server and tlog.
+
+``harness run`` starts one of these for all vehicles (the host benchmark in ``docs/autopilot.md`` shows
+one process for several vehicles is cheaper than one per vehicle). Each vehicle gets a MAVLink server
+on the wall clock (API port ``api_port_base + i``, GCS port) and writes ``vehicle-<i>.tlog`` in the run
+directory: every MAVLink frame it sent or received, each preceded by its 8-byte big-endian Unix time in
+microseconds (the format of QGroundControl and MAVProxy telemetry logs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import struct
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import BinaryIO
+
+from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+from harness.autopilot.host import run_autopilots
+from harness.autopilot.mavlink.codec import SigningConfig
+from harness.autopilot.mavlink.server import MavlinkServer
+from harness.autopilot.mavlink.transport import PortsConfig
+from harness.errors import HarnessError, ScenarioError
+from harness.simclock.clock import real_time_ns
+
+log = logging.getLogger(__name__)
+
+_STAMP = struct.Struct(">Q")
+
+
+class TlogWriter:
+    """Appends MAVLink frames to a ``.tlog``; flushed every ``flush_every`` frames and on close."""
+
+    def __init__(self, path: Path, flush_every: int = 50) -> None:
+        self._f: BinaryIO = path.open("ab")
+        self._n = 0
+        self._flush_every = flush_every
+        self._lock = threading.Lock()
+        self.closed = False
+
+    def write(self, frame: bytes) -> None:
+        with self._lock:
+            if self.closed:
+                return
+            self._f.write(_STAMP.pack(real_time_ns() // 1000) + frame)
+            self._n += 1
+            if self._n % self._flush_every == 0:
+                self._f.flush()
+
+    def close(self) -> None:
+        with self._lock:
+            if not self.closed:
+                self.closed = True
+                self._f.close()
+
+
+class _Attached:
+    def __init__(self, server: MavlinkServer, tlog: TlogWriter | None) -> None:
+        self.server = server
+        self.tlog = tlog
+
+    def close(self) -> None:
+        self.server.stop()
+        if self.tlog is not None:
+            self.tlog.close()
+
+
+def attach_mavlink(ap: Autopilot, ports: PortsConfig, run_dir: Path | None, signing: SigningConfig | None) -> _Attached:
+    tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog") if run_dir is not None else None
+    server = MavlinkServer(ap, ap.vehicle, ports, signing, tap=tlog.write if tlog else None).start()
+    return _Attached(server, tlog)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m harness.autopilot.sitl", description=__doc__)
+    ap.add_argument("--address", required=True, help="channel address")
+    ap.add_argument("--vehicles", required=True, help="comma-separated vehicle indices")
+    ap.add_argument("--api-port-base", type=int, default=14540)
+    ap.add_argument("--gcs-port", type=int, default=14550)
+    ap.add_argument("--run-dir", type=Path, default=None, help="write vehicle-<i>.tlog here")
+    ap.add_argument("--params", default="{}", help='JSON: {"<vehicle>": {"PARAM": value}}')
+    ap.add_argument("--signing-key", default=None, help="MAVLink 2 signing key (64 hex digits)")
+    ap.add_argument("--ground-truth", action="store_true")
+    a = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        vehicles = [int(v) for v in a.vehicles.split(",") if v.strip()]
+        overrides = {int(k): v for k, v in json.loads(a.params).items()}
+        signing = SigningConfig(bytes.fromhex(a.signing_key)) if a.signing_key else None
+    except (ValueError, json.JSONDecodeError) as exc:
+        raise ScenarioError(f"autopilot process: bad argument: {exc}") from None
+    ports = PortsConfig(api_port_base=a.api_port_base, gcs_port=a.gcs_port)
+    try:
+        run_autopilots(
+            a.address,
+            vehicles,
+            config_for=lambda v: AutopilotConfig(
+                vehicle=v, use_ground_truth=a.ground_truth, params=overrides.get(v, {})
+            ),
+            attach=lambda autopilot: attach_mavlink(autopilot, ports, a.run_dir, signing),
+        )
+    except HarnessError as exc:
+        log.error("%s", exc)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

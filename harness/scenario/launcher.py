@@ -1,0 +1,360 @@
+"""The launcher behind ``harness run``: physics + root channel in this process, everything else supervised.
+
+Processes of a run::
+
+    harness run (this process)     physics (JSBSim, N vehicles) + root channel + recorder + progress
+      ├─ autopilot host            all vehicles' autopilots and MAVLink servers (python -m harness.autopilot.host)
+      ├─ network (optional)        the type-1 network subscriber
+      └─ mission i (per vehicle)   harness mission SCRIPT on the sim clock (type 0)
+
+The loop is the paper's tick, driven from here: physics frames → ``channel.step`` (autopilots answer,
+missions run phase 0, the network phase 1) → motor commands → physics. The run ends when every mission
+has exited, the duration is reached, a fault fails the run, or on Ctrl-C; every child is then stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from harness.errors import ScenarioError, SimulationError
+from harness.record.world import WorldRecorder
+from harness.simclock import protocol as p
+from harness.simclock.channel import Channel, ChannelConfig
+from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep, real_time_ns
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MissionPlan:
+    script: Path
+    args: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class LaunchPlan:
+    """Everything a run needs, already validated (built from a scenario file or the command line)."""
+
+    vehicles: int
+    out: Path
+    missions: tuple[MissionPlan | None, ...] = ()
+    """Per vehicle (index i), or shorter: vehicles past the end fly no mission."""
+    seed: int = 0
+    physics_hz: float = 1000.0
+    tick_hz: float = 250.0
+    phase_every: int = 5
+    speed: float | None = None
+    """Real-time factor to pace at; None = as fast as possible."""
+    duration_s: float | None = None
+    network: str = "none"
+    network_params: dict[str, Any] = field(default_factory=dict)
+    stall_timeout_s: float = 30.0
+    origin: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
+    wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    turbulence: float = 0.0
+    spawn_ned_m: tuple[tuple[float, float, float], ...] | None = None
+    params: tuple[dict[str, float], ...] = ()
+    api_port_base: int = 14540
+    gcs_port: int = 14550
+    record_hz: float = 50.0
+    progress: Callable[[str], None] | None = None
+
+
+@dataclass
+class VehicleSummary:
+    id: int
+    mission: str | None
+    mission_exit_code: int | None = None
+    max_altitude_m: float = 0.0
+    final_position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    landed: bool = True
+    armed: bool = False
+    crashed: bool = False
+
+
+@dataclass
+class RunResult:
+    status: str
+    sim_time_s: float
+    wall_time_s: float
+    vehicles: list[VehicleSummary]
+    faults: list[dict[str, Any]]
+    message: str = ""
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else 0.0
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.status == "ok" else (130 if self.status == "interrupted" else 1)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "status": self.status,
+            "message": self.message,
+            "sim_time_s": self.sim_time_s,
+            "wall_time_s": self.wall_time_s,
+            "real_time_factor": self.real_time_factor,
+            "vehicles": [v.__dict__ | {"final_position_ned_m": list(v.final_position_ned_m)} for v in self.vehicles],
+            "faults": self.faults,
+        }
+
+
+def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
+    tmp = out / "summary.json.tmp"
+    tmp.write_text(json.dumps(result.to_json() | extra, indent=2))
+    os.replace(tmp, out / "summary.json")
+
+
+def _python() -> str:
+    return sys.executable
+
+
+class Launcher:
+    """Runs one plan. ``run()`` returns the result; the summary is written in any case."""
+
+    def __init__(self, plan: LaunchPlan) -> None:
+        if plan.vehicles < 1:
+            raise ScenarioError(f"a run needs at least one vehicle, got {plan.vehicles}")
+        self.plan = plan
+        plan.out.mkdir(parents=True, exist_ok=True)
+        self.epoch_ns = real_time_ns() // NS_PER_S * NS_PER_S
+
+    def run(self) -> RunResult:
+        from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
+        from harness.scenario.supervisor import Supervisor
+
+        plan = self.plan
+        n = plan.vehicles
+        phys = Physics(
+            PhysicsConfig(
+                n_vehicles=n,
+                seed=plan.seed,
+                substep_hz=plan.physics_hz,
+                tick_hz=plan.tick_hz,
+                origin=WorldOrigin(*plan.origin),
+                wind=WindConfig(steady_ned_m_s=plan.wind_ned_m_s, turbulence=plan.turbulence),
+                spawn_ned_m=plan.spawn_ned_m,
+            )
+        )
+        channel = Channel(
+            ChannelConfig(
+                tick_hz=plan.tick_hz,
+                phase_every=plan.phase_every,
+                stall_timeout_s=plan.stall_timeout_s,
+                epoch_ns=self.epoch_ns,
+                name="root",
+            )
+        )
+        channel.attach_physics()
+        world = WorldRecorder(plan.out / "world.mcap", self.epoch_ns, n)
+        summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
+        faults: list[dict[str, Any]] = []
+        status, message = "ok", ""
+        wall0 = real_monotonic_ns()
+        t_ns = 0
+        with Supervisor(plan.out) as sup:
+            try:
+                self._start_children(sup, channel.address)
+                expected = 1 + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
+                if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=60.0):
+                    raise SimulationError(
+                        f"only {len(channel.subscribers())} of {expected} processes joined the channel within 60 s "
+                        f"(see the *.stderr files in {plan.out})"
+                    )
+                status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
+            except KeyboardInterrupt:
+                status, message = "interrupted", "stopped by Ctrl-C"
+            except SimulationError as exc:
+                status, message = "failed", str(exc)
+            finally:
+                channel.close("end of run")
+                world.close()
+        wall_s = (real_monotonic_ns() - wall0) / NS_PER_S
+        exits = {e.vehicle: e for e in channel.mission_exits}
+        for s in summaries:
+            if s.mission is not None:
+                e = exits.get(s.id)
+                s.mission_exit_code = e.exit_code if e is not None else None
+                if status == "ok" and (e is None or e.exit_code != 0):
+                    status = "failed"
+                    message = message or f"the mission of vehicle {s.id} exited with {s.mission_exit_code}"
+        faults = [f.__dict__ for f in channel.faults]
+        if any(s.crashed for s in summaries) and status == "ok":
+            status, message = "failed", "a vehicle crashed"
+        result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
+        write_summary(
+            plan.out,
+            result,
+            {
+                "seed": plan.seed,
+                "tick_hz": plan.tick_hz,
+                "physics_hz": plan.physics_hz,
+                "phase_every": plan.phase_every,
+            },
+        )
+        return result
+
+    def _start_children(self, sup: Any, address: str) -> None:
+        plan = self.plan
+        env = dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out))
+        vehicles = ",".join(str(i) for i in range(plan.vehicles))
+        sup.start(
+            "autopilot",
+            [
+                _python(),
+                "-m",
+                "harness.autopilot.sitl",
+                "--address",
+                address,
+                "--vehicles",
+                vehicles,
+                "--api-port-base",
+                str(plan.api_port_base),
+                "--gcs-port",
+                str(plan.gcs_port),
+                "--run-dir",
+                str(plan.out),
+            ],
+            env=env,
+        )
+        if plan.network != "none":
+            sup.start(
+                "network",
+                [
+                    _python(),
+                    "-m",
+                    "harness.net.subscriber",
+                    "--address",
+                    address,
+                    "--model",
+                    plan.network,
+                    "--seed",
+                    str(plan.seed),
+                    "--params",
+                    json.dumps(plan.network_params),
+                ],
+                env=env,
+            )
+        for i, m in enumerate(plan.missions[: plan.vehicles]):
+            if m is None:
+                continue
+            menv = dict(
+                env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(i + 1), HARNESS_MAVLINK_PORT=str(plan.api_port_base + i)
+            )
+            sup.start(
+                f"mission-{i}",
+                [
+                    _python(),
+                    "-m",
+                    "harness.cli",
+                    "mission",
+                    "--channel",
+                    address,
+                    "--vehicle",
+                    str(i),
+                    str(m.script),
+                    "--",
+                    *m.args,
+                ],
+                env=menv,
+            )
+
+    def _loop(
+        self, phys: Any, channel: Channel, world: WorldRecorder, summaries: list[VehicleSummary], sup: Any
+    ) -> tuple[str, str, int]:
+        plan = self.plan
+        n = plan.vehicles
+        record_every = max(1, round(plan.tick_hz / plan.record_hz))
+        end_ns = None if plan.duration_s is None else round(plan.duration_s * NS_PER_S)
+        missions = sum(1 for m in plan.missions[:n] if m)
+        frames = phys.frames()
+        wall0 = real_monotonic_ns()
+        last_progress = wall0
+        motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
+        while True:
+            t_ns = phys.t_ns
+            tick = phys.tick
+            if end_ns is not None and t_ns >= end_ns:
+                return "ok", "", t_ns
+            if missions and len(channel.mission_exits) >= missions:
+                return "ok", "", t_ns
+            if plan.speed is not None:
+                lag = wall0 + int(t_ns / plan.speed) - real_monotonic_ns()
+                if lag > 0:
+                    real_sleep(lag / NS_PER_S)
+            tick_start = real_monotonic_ns()
+            btas = [p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, _encode(f)) for f in frames]
+            etas = channel.step(btas)
+            for e in etas:
+                motors[e.vehicle] = e.motors
+                armed, landed_state, _, _ = p.unpack_status(e.status)
+                s = summaries[e.vehicle]
+                s.armed = armed
+                s.landed = landed_state in (0, 1)
+            if tick % record_every == 0:
+                now = real_monotonic_ns()
+                for f in frames:
+                    tr = f.truth
+                    world.vehicle(
+                        t_ns,
+                        f.vehicle,
+                        tr.pos_ned_m,
+                        tr.quat,
+                        tr.vel_ned_m_s,
+                        tr.lat_deg,
+                        tr.lon_deg,
+                        tr.alt_amsl_m,
+                        motors[f.vehicle],
+                        tr.on_ground,
+                        tr.crashed,
+                    )
+                world.tick(t_ns, tick, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3)
+            frames = phys.step(motors)
+            for f in frames:
+                s = summaries[f.vehicle]
+                alt = -f.truth.pos_ned_m[2]
+                if alt > s.max_altitude_m:
+                    s.max_altitude_m = alt
+                s.final_position_ned_m = f.truth.pos_ned_m
+                if f.truth.crashed and not s.crashed:
+                    s.crashed = True
+                    world.event(t_ns, "crash", {"vehicle": f.vehicle})
+            for name, code in sup.poll_exits():
+                if name == "autopilot" or name == "network":
+                    raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
+            if plan.progress is not None and real_monotonic_ns() - last_progress > 500_000_000:
+                last_progress = real_monotonic_ns()
+                plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
+
+    @staticmethod
+    def _progress_line(
+        t_ns: int, wall_ns: int, summaries: list[VehicleSummary], channel: Channel, missions: int
+    ) -> str:
+        rtf = t_ns / wall_ns if wall_ns else 0.0
+        armed = sum(1 for s in summaries if s.armed)
+        in_air = sum(1 for s in summaries if not s.landed)
+        done = len(channel.mission_exits)
+        return (
+            f"sim {t_ns / NS_PER_S:7.1f} s  x{rtf:5.1f} real time  armed {armed}/{len(summaries)}  "
+            f"in air {in_air}  missions done {done}/{missions}"
+        )
+
+
+def _mission_name(plan: LaunchPlan, i: int) -> str | None:
+    m = plan.missions[i] if i < len(plan.missions) else None
+    return str(m.script) if m is not None else None
+
+
+def _encode(frame: Any) -> bytes:
+    from harness.fdm.frame import encode_frame
+
+    return encode_frame(frame)
