@@ -159,15 +159,16 @@ def test_set_message_interval_and_request_message(gcs: Gcs, idle_rig: Rig) -> No
     assert gcs.command(512, 12345).result == M.MAV_RESULT_UNSUPPORTED
 
 
-def test_ping_and_home_after_arming(gcs: Gcs, idle_rig: Rig) -> None:
+def test_ping_and_home_before_arming(gcs: Gcs, idle_rig: Rig) -> None:
     gcs.send(gcs.mav.ping_encode(123456, 42, 0, 0))
     pong = gcs.recv("PING", cond=lambda m: m.seq == 42)
     assert pong.time_usec == 123456 and pong.target_system == 245
-    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0).result == M.MAV_RESULT_ACCEPTED
-    idle_rig.step_s(0.1)
-    home = gcs.recv("HOME_POSITION", 2.0)
+    # like PX4, home is set at the first good global position, before arming (MAVSDK waits for it)
     state = idle_rig.ap.state()
-    assert state.home is not None
-    assert abs(home.latitude - round(state.home.lat_deg * 1e7)) <= 1
+    assert state.home is not None and not state.armed
     assert gcs.command(512, M.MAVLINK_MSG_ID_HOME_POSITION).result == M.MAV_RESULT_ACCEPTED
-    assert gcs.recv("HOME_POSITION").altitude == round(state.home.alt_amsl_m * 1000)
+    home = gcs.recv("HOME_POSITION")
+    assert abs(home.latitude - round(state.home.lat_deg * 1e7)) <= 1
+    assert home.altitude == round(state.home.alt_amsl_m * 1000)
+    assert gcs.command(410).result == M.MAV_RESULT_ACCEPTED  # the old GET_HOME_POSITION
+    assert gcs.recv("HOME_POSITION").latitude == home.latitude

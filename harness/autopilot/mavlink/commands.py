@@ -279,6 +279,6 @@ class CommandService:
         msg = self.request_message(msg_id)
         if msg is None:
             return CommandOutcome(CommandResult.unsupported(""))
-        if isinstance(msg, str):
+        if isinstance(msg, str):  # known but not available now ('' = nothing worth a STATUSTEXT)
             return CommandOutcome(CommandResult(Result.TEMPORARILY_REJECTED, msg))
         return CommandOutcome(CommandResult.accepted(), [msg])

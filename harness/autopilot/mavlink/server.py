@@ -86,6 +86,7 @@ class MavlinkServer:
         wall_ns: Callable[[], int] = real_monotonic_ns,
         unix_ns: Callable[[], int] = real_time_ns,
         tap: Callable[[bytes], None] | None = None,
+        home_on_first_fix: bool = True,
     ) -> None:
         self.api = autopilot
         self.vehicle = vehicle
@@ -94,6 +95,8 @@ class MavlinkServer:
         self.ports = ports or PortsConfig()
         self._wall_ns = wall_ns
         self._tap = tap
+        self._home_on_first_fix = home_on_first_fix
+        self._home_try_ns: int | None = None
         self.codec = Codec(self.sysid, self.compid, signing, unix_ns)
         mav = self.codec.mav
         self.links = [UdpLink(cfg) for cfg in self.ports.links(vehicle)]
@@ -112,7 +115,6 @@ class MavlinkServer:
         self._chunk_id = 0
         self._t_ns = 0
         self._home: GeoPoint | None = None
-        self._state = VehicleState()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -289,8 +291,8 @@ class MavlinkServer:
         builder = BUILDERS.get(msg_id)
         if builder is None:
             return None
-        msg = builder(mav, self._state, self._boot_ms())
-        return "no home position yet" if msg is None else msg
+        msg = builder(mav, self.api.state(), self._boot_ms())
+        return "" if msg is None else msg  # no home yet: TEMPORARILY_REJECTED, no STATUSTEXT (MAVSDK polls)
 
     # ------------------------------------------------------------------ periodic
     def _boot_ms(self) -> int:
@@ -298,7 +300,8 @@ class MavlinkServer:
 
     def _tick(self, now: int) -> None:
         state = self.api.state()
-        self._state = state
+        if self._home_on_first_fix and state.home is None and self._set_home_at_first_fix(state, now):
+            state = self.api.state()
         self._t_ns = max(self._t_ns, state.t_ns)
         mav = self.codec.mav
         outs: list[Out] = []
@@ -326,6 +329,17 @@ class MavlinkServer:
         self._send_all(self.params.tick(), now)
         self._send_all(self.missions.tick(now), now)
         self._mission_refusals(now)
+
+    def _set_home_at_first_fix(self, state: VehicleState, now: int) -> bool:
+        """Adapter: PX4 sets home as soon as the global position is good, before arming; MAVSDK scripts wait
+        for ``is_home_position_ok`` before they arm. The flight core sets home only when arming, so this
+        asks it to set home here once GPS and the position estimate are good (retried every second)."""
+        if state.armed or not (state.health.gps_ok and state.health.local_position_ok):
+            return False
+        if self._home_try_ns is not None and now - self._home_try_ns < 1_000_000_000:
+            return False
+        self._home_try_ns = now
+        return self.api.set_home(None).ok
 
     def _mission_refusals(self, now: int) -> None:
         for r in self.missions.pop_refusals():
