@@ -11,11 +11,19 @@ A legacy float MISSION_ITEM is converted and accepted the same way.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, CommandResult, MissionItem, MissionKind, Result
+from harness.autopilot.api import (
+    SKIPPED_MISSION_COMMANDS,
+    AutopilotApi,
+    CommandResult,
+    MissionItem,
+    MissionKind,
+    Result,
+)
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, clamp_int
 
 log = logging.getLogger(__name__)
@@ -34,12 +42,18 @@ _RESULT_TO_MISSION = {
 
 
 def item_from_message(m: MAVLinkMessage, kind: MissionKind) -> MissionItem:
-    """MISSION_ITEM_INT (or float MISSION_ITEM) to a ``MissionItem`` (global x/y as degrees*1e7 ints)."""
+    """MISSION_ITEM_INT (or float MISSION_ITEM) to a ``MissionItem`` (global x/y as degrees*1e7 ints).
+
+    Items that have no position (speed, gimbal and camera items) get NaN coordinates from MAVSDK; they
+    mean nothing there, so they become 0 (the flight core refuses non-finite coordinates on any item).
+    """
     probe = MissionItem(0, m.frame, m.command)
     is_int = m.get_msgId() == mavlink2.MAVLINK_MSG_ID_MISSION_ITEM_INT
     x: int | float
     y: int | float
-    if probe.is_global:
+    if m.command in SKIPPED_MISSION_COMMANDS:
+        x, y = 0, 0
+    elif probe.is_global:
         x, y = (
             (m.x, m.y)
             if is_int
@@ -57,7 +71,7 @@ def item_from_message(m: MAVLinkMessage, kind: MissionKind) -> MissionItem:
         param4=m.param4,
         x=x,
         y=y,
-        z=m.z,
+        z=0.0 if m.command in SKIPPED_MISSION_COMMANDS and not math.isfinite(m.z) else m.z,
         autocontinue=bool(m.autocontinue),
         current=bool(m.current),
         mission_type=kind,

@@ -25,7 +25,8 @@ CAPABILITIES = (
 FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255
 """Reported as PX4 1.15.0 release: the PX4 behaviour MAVLINK.md describes."""
 
-_CUSTOM_VERSION = list(b"harness\0")
+_CUSTOM_VERSION = [0] * 8
+"""PX4 puts its git hash here; we have none to give."""
 
 
 def autopilot_version(mav: mavlink2.MAVLink, sysid: int) -> MAVLinkMessage:
