@@ -89,7 +89,7 @@ def test_reposition_command_int_and_orbit(gcs: Gcs, flying_rig: Rig) -> None:
 def test_offboard_needs_setpoints_and_falls_back_when_they_stop(gcs: Gcs, flying_rig: Rig) -> None:
     _take_off(gcs, flying_rig)
     assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_DENIED
-    mask = 0b0000_1101_1100_0111  # use velocity and yaw: ignore position, accel, force, yaw rate
+    mask = 0b0000_1001_1100_0111  # velocity and yaw (ignore position, acceleration, yaw rate), as MAVSDK
     n0 = flying_rig.sim.pos[0]
 
     def stream(seconds: float) -> list[object]:
