@@ -7,10 +7,15 @@ import logging
 import os
 import signal
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from harness.errors import HarnessError, ScenarioError
+
+if TYPE_CHECKING:
+    from harness.scenario.launcher import LaunchPlan
 
 
 def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
@@ -57,10 +62,126 @@ def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
     return 0
 
 
+def _speed(text: str) -> float | None:
+    if text == "max":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--speed must be 'max' or a positive number, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"--speed must be 'max' or a positive number, got {text!r}")
+    return value
+
+
+def _progress_printer() -> Callable[[str], None]:
+    if sys.stderr.isatty():
+
+        def live(line: str) -> None:
+            sys.stderr.write("\r\033[K" + line)
+            sys.stderr.flush()
+
+        return live
+    return lambda line: print(line, file=sys.stderr, flush=True)
+
+
+def _plan_from_args(a: argparse.Namespace) -> LaunchPlan:
+    from harness.scenario.launcher import LaunchPlan, MissionPlan
+
+    missions = [MissionPlan(Path(m)) for m in a.mission]
+    for m in missions:
+        if not m.script.is_file():
+            raise ScenarioError(f"--mission {m.script}: the file does not exist")
+    vehicles = a.vehicles if a.vehicles is not None else max(1, len(missions))
+    if vehicles < 1:
+        raise ScenarioError(f"--vehicles must be >= 1, got {vehicles}")
+    if len(missions) == 1 and vehicles > 1:
+        missions = missions * vehicles  # one script flies every vehicle
+    return LaunchPlan(
+        vehicles=vehicles,
+        out=Path(a.out) if a.out else Path("runs") / time.strftime("%Y%m%d-%H%M%S"),
+        missions=tuple(missions),
+        seed=a.seed,
+        speed=a.speed,
+        duration_s=a.duration,
+        network=a.network,
+        progress=_progress_printer(),
+    )
+
+
+def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
+    from harness.scenario.launcher import Launcher
+
+    plan = _plan_from_args(a)
+    result = Launcher(plan).run()
+    if sys.stderr.isatty():
+        sys.stderr.write("\n")
+    print(
+        f"{result.status}: {result.sim_time_s:.1f} s simulated in {result.wall_time_s:.1f} s "
+        f"(x{result.real_time_factor:.1f} real time); results in {plan.out}"
+    )
+    if result.message:
+        print(result.message, file=sys.stderr)
+    for v in result.vehicles:
+        print(
+            f"  vehicle {v.id}: mission exit {v.mission_exit_code}, max altitude {v.max_altitude_m:.1f} m, "
+            f"final NED {tuple(round(x, 1) for x in v.final_position_ned_m)}, landed {v.landed}"
+        )
+    if a.plot:
+        from harness.record.plot import make_plots
+
+        make_plots(plan.out)
+        print(f"plots: {plan.out / 'index.html'}")
+    return result.exit_code
+
+
+def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
+    import harness
+
+    demo = Path(harness.__file__).resolve().parent.parent / "missions" / "takeoff_and_land.py"
+    if not demo.is_file():
+        raise ScenarioError(f"the demo mission {demo} is missing (run the demo from a clone of the repository)")
+    a.mission = [str(demo)]
+    a.vehicles = a.vehicles or 3
+    a.plot = True
+    return _cmd_run(a, rest)
+
+
+def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
+    from harness.record.plot import make_plots
+
+    for path in make_plots(Path(a.dir)):
+        print(path)
+    return 0
+
+
+def _add_run_options(r: argparse.ArgumentParser) -> None:
+    r.add_argument("--vehicles", type=int, default=None, help="number of vehicles (default: one per --mission)")
+    r.add_argument("--mission", action="append", default=[], help="mission script (one: every vehicle flies it)")
+    r.add_argument("--speed", type=_speed, default=None, help="'max' (default) or a real-time factor")
+    r.add_argument("--duration", type=float, default=None, help="sim-time limit in seconds")
+    r.add_argument("--network", choices=["builtin", "ns3", "none"], default="none")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--out", default=None, help="run directory (default runs/<timestamp>)")
+    r.add_argument("--plot", action="store_true", help="write plots into the run directory at the end")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="harness", description="Lockstep co-simulation of multirotor UAV swarms.")
     ap.add_argument("-v", "--verbose", action="count", default=0)
     sub = ap.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("run", help="a headless batch run: physics, autopilots, network and missions")
+    _add_run_options(r)
+    r.set_defaults(func=_cmd_run)
+
+    d = sub.add_parser("demo", help="fly the bundled takeoff-and-land mission with 3 vehicles and plot it")
+    _add_run_options(d)
+    d.set_defaults(func=_cmd_demo)
+
+    pl = sub.add_parser("plot", help="plots and an HTML page from a run directory")
+    pl.add_argument("dir")
+    pl.set_defaults(func=_cmd_plot)
 
     m = sub.add_parser("mission", help="run an unmodified script as a type-0 subscriber on the sim clock")
     m.add_argument("script")

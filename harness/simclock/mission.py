@@ -49,6 +49,7 @@ class _ClockThread(threading.Thread):
         self.rt = rt
         self.end_reason: str | None = None
         self.seq = 0
+        self.script_done = False
 
     def run(self) -> None:
         try:
@@ -79,6 +80,8 @@ class _ClockThread(threading.Thread):
             self._end(f"internal error in the sim clock: {exc!r}")
 
     def _end(self, reason: str) -> None:
+        if self.script_done:
+            return  # the script ended first; the main thread is reporting and exiting
         self.end_reason = reason
         self.rt.close()
         sys.stderr.write(f"harness mission: {reason}; stopping the script\n")
@@ -180,6 +183,7 @@ def run_mission(spec: MissionSpec) -> int:
         for t in _script_threads():  # a normal end waits for the script's own threads, as Python does
             t.join()
     rt.thread_done()
+    clock.script_done = True
     try:
         client.close(f"script exited with {code}", code)
     except Exception:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import _thread
 import collections
 import logging
+import os
 import sys
 import threading
 from collections.abc import Callable
@@ -34,6 +35,7 @@ from harness.simclock.clock import NS_PER_S, real_monotonic_ns
 log = logging.getLogger(__name__)
 
 _LockType = type(_thread.allocate_lock())
+_REPORT_AFTER_NS = 3 * NS_PER_S
 
 INFRA_THREAD_PREFIX = "harness-"
 """Threads whose name starts with this belong to the harness, not to the script."""
@@ -101,6 +103,7 @@ class SimRuntime:
         self._gate_waiters: list[Waiter] = []
         self._by_lock: dict[int, Waiter] = {}
         self._done_threads: set[int] = set()
+        self._script_threads: dict[int, bool] = {}
         self.stats = PhaseStats()
         self.inbox: collections.deque[Delivery] = collections.deque()
         self._inbox_waiters: list[Waiter] = []
@@ -133,15 +136,29 @@ class SimRuntime:
             for w in gated:
                 self._release_locked(w)
             self.stats.waits_released += len(due) + len(gated)
+        report_at = start + _REPORT_AFTER_NS
         while True:
             with self._mu:
                 if self._all_idle_locked():
                     self._gate_open = False
                     break
             self._signal.acquire(True, idle_poll_s)
+            if real_monotonic_ns() > report_at:
+                report_at += _REPORT_AFTER_NS
+                log.warning(
+                    "phase 0 at t=%.3f s has waited %.1f s for the script; busy threads: %s",
+                    t_ns / NS_PER_S,
+                    (real_monotonic_ns() - start) / NS_PER_S,
+                    "; ".join(self.busy_threads()) or "none",
+                )
         self.stats.phases += 1
         self.stats.last_phase_wall_ns = real_monotonic_ns() - start
         self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
+
+    def busy_threads(self) -> list[str]:
+        """Where every thread that keeps phase 0 from ending is (diagnostics)."""
+        with self._mu:
+            return [f"{t.name} at {where}" for t, where in self._busy_locked()]
 
     def take_outbox(self) -> list[_Outgoing]:
         with self._mu:
@@ -313,7 +330,27 @@ class SimRuntime:
         if w in self._inbox_waiters:
             self._inbox_waiters.remove(w)
 
+    def _is_script_thread(self, t: threading.Thread) -> bool:
+        """Whether ``t`` runs the script's work (and so must be idle for phase 0 to end).
+
+        The main thread, threads whose target is the script's own code, and thread-pool workers (they run
+        the script's functions) do. Service threads of installed libraries (gRPC's poller, mavsdk-grpc's
+        server-output reader…) do not: they sit outside the simulation like the autopilot, and what they
+        produce reaches the script only through its event loop, which is gated.
+        """
+        ident = t.ident
+        assert ident is not None
+        known = self._script_threads.get(ident)
+        if known is None:
+            known = t is threading.main_thread() or _thread_code_is_script(t)
+            self._script_threads[ident] = known
+        return known
+
     def _all_idle_locked(self) -> bool:
+        return not self._busy_locked(first_only=True)
+
+    def _busy_locked(self, first_only: bool = False) -> list[tuple[threading.Thread, str]]:
+        busy: list[tuple[threading.Thread, str]] = []
         frames: dict[int, FrameType] | None = None
         for t in threading.enumerate():
             ident = t.ident
@@ -321,16 +358,48 @@ class SimRuntime:
                 continue
             if ident in self._done_threads or ident in self._idle:
                 continue
+            if not self._is_script_thread(t):
+                continue
             if frames is None:
                 frames = sys._current_frames()
             frame = frames.get(ident)
             if frame is None:
                 continue  # the thread has ended
-            where = (frame.f_code.co_filename.rsplit("/", 1)[-1], frame.f_code.co_name)
-            if where in _IDLE_FRAMES:
+            code = frame.f_code
+            if (code.co_filename.rsplit("/", 1)[-1], code.co_name) in _IDLE_FRAMES:
                 continue
-            return False
+            busy.append((t, f"{code.co_filename}:{frame.f_lineno} in {code.co_name}"))
+            if first_only:
+                break
+        return busy
+
+
+_LIBRARY_ROOTS = tuple(
+    {
+        sys.prefix,
+        sys.base_prefix,
+        sys.exec_prefix,
+        os.path.dirname(os.__file__),
+        os.path.dirname(os.path.dirname(__file__)),
+    }
+)
+_WORKER_CODE = {("thread.py", "_worker")}
+
+
+def _thread_code_is_script(t: threading.Thread) -> bool:
+    target = getattr(t, "_target", None)
+    func = target if target is not None else getattr(type(t), "run", None)
+    code = getattr(func, "__code__", None)
+    if code is not None and (code.co_filename.rsplit("/", 1)[-1], code.co_name) in _WORKER_CODE:
         return True
+    module_name = getattr(func, "__module__", None) or ""
+    if module_name == "__main__":
+        return True
+    module = sys.modules.get(module_name)
+    filename = getattr(module, "__file__", None) or (code.co_filename if code is not None else "")
+    if not filename or not os.path.isabs(filename):
+        return True  # unknown origin: be safe, wait for it
+    return not filename.startswith(_LIBRARY_ROOTS)
 
 
 _current: SimRuntime | None = None
