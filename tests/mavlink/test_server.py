@@ -172,3 +172,40 @@ def test_ping_and_home_before_arming(gcs: Gcs, idle_rig: Rig) -> None:
     assert home.altitude == round(state.home.alt_amsl_m * 1000)
     assert gcs.command(410).result == M.MAV_RESULT_ACCEPTED  # the old GET_HOME_POSITION
     assert gcs.recv("HOME_POSITION").latitude == home.latitude
+
+
+def test_gcs_port_and_api_port_both_serve_and_set_mode_message(gcs: Gcs) -> None:
+    """Vehicle 2 (sysid 3): its API link sends to api_port_base + 2, its GCS link to the GCS port; both
+    answer; the SET_MODE message (no ACK) changes the mode; the other GCS sees it."""
+    import numpy as np
+
+    from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+    from harness.autopilot.mavlink import MavlinkServer, PortsConfig
+    from tests.autopilot.quadsim import QuadSim, fly
+
+    qgc = Gcs(sysid=255, compid=190)
+    ap = Autopilot(AutopilotConfig(vehicle=2))
+    sim = QuadSim(np.random.default_rng(4))
+    fly(ap, sim, 3.0)
+    server = MavlinkServer(ap, 2, PortsConfig(api_port_base=gcs.port - 2, gcs_port=qgc.port)).start()
+    try:
+        hb_api = gcs.connect()
+        hb_gcs = qgc.connect()
+        assert hb_api.get_srcSystem() == hb_gcs.get_srcSystem() == 3
+        assert gcs.server != qgc.server, "one socket per link"
+        ack = qgc.command(512, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, target=3)
+        assert ack.result == M.MAV_RESULT_ACCEPTED and ack.target_system == 255
+        pos = FlightMode.POSCTL.custom_mode
+        gcs.send(gcs.mav.set_mode_encode(3, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, pos))
+        gcs.collect(0.2)
+        fly(ap, sim, 0.1)  # the mode applies at the next step
+        assert qgc.recv("HEARTBEAT", 2.0, lambda m: m.custom_mode == pos)
+        gcs.send(gcs.mav.set_mode_encode(3, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, FlightMode.MANUAL.custom_mode))
+        assert "RC" in qgc.recv("STATUSTEXT", 2.0).text  # refused, reason to every GCS
+        # a command for another system is not ours: no ACK, counted
+        gcs.send(gcs.mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
+        gcs.collect(0.3)
+        assert server.counters().not_for_us >= 1
+    finally:
+        server.stop()
+        qgc.close()
