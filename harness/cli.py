@@ -147,6 +147,22 @@ def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
     return _cmd_run(a, rest)
 
 
+def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
+    """Vehicles at real time for a ground station and hand-run scripts, until Ctrl-C."""
+    from harness.scenario.launcher import Launcher
+
+    a.mission, a.duration, a.plot = [], None, False
+    plan = _plan_from_args(a)
+    print(
+        f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time. MAVLink: GCS on udp port {plan.gcs_port}, "
+        f"vehicle i sends to udp port {plan.api_port_base}+i (MAVSDK: udpin://0.0.0.0:{plan.api_port_base}). "
+        "Ctrl-C stops.",
+        flush=True,
+    )
+    result = Launcher(plan).run()
+    return 0 if result.status in ("ok", "interrupted") else 1
+
+
 def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
     from harness.record.plot import make_plots
 
@@ -178,6 +194,10 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="fly the bundled takeoff-and-land mission with 3 vehicles and plot it")
     _add_run_options(d)
     d.set_defaults(func=_cmd_demo)
+
+    st = sub.add_parser("sitl", help="vehicles at real time for QGroundControl and hand-run scripts")
+    _add_run_options(st)
+    st.set_defaults(func=_cmd_sitl, speed=1.0)
 
     pl = sub.add_parser("plot", help="plots and an HTML page from a run directory")
     pl.add_argument("dir")
