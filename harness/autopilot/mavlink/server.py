@@ -51,7 +51,8 @@ _MISSION_IDS = {
 _SETPOINT_IDS = {_M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED, _M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET}
 _TEXT_REPEAT_NS = 2_000_000_000
 _MAX_WAIT_NS = 10_000_000
-"""Longest select() wait: sim-rate streams and the stop flag are checked at least at 100 Hz."""
+"""Longest select() wait while sim time moves: sim-rate streams are checked at least at 100 Hz."""
+_MAX_WAIT_PAUSED_NS = 100_000_000
 
 
 @dataclass
@@ -114,6 +115,7 @@ class MavlinkServer:
         self._errors_logged: set[str] = set()
         self._chunk_id = 0
         self._t_ns = 0
+        self._sim_moving = True
         self._home: GeoPoint | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -178,10 +180,13 @@ class MavlinkServer:
                 self._log_once(e, "periodic work")
 
     def _wait_s(self) -> float:
+        """Until the next wall-clock stream is due; at most 10 ms while sim time moves (sim-rate streams),
+        at most 100 ms while it stands still (a paused simulation costs almost no CPU)."""
         if self.params.busy:
             return 0.002
+        cap = _MAX_WAIT_NS if self._sim_moving else _MAX_WAIT_PAUSED_NS
         nxt = self.streams.next_due_wall_ns()
-        wait = _MAX_WAIT_NS if nxt is None else min(_MAX_WAIT_NS, max(0, nxt - self._wall_ns()))
+        wait = cap if nxt is None else min(cap, max(0, nxt - self._wall_ns()))
         return wait / 1e9
 
     def _log_once(self, e: Exception, what: str) -> None:
@@ -302,6 +307,7 @@ class MavlinkServer:
         state = self.api.state()
         if self._home_on_first_fix and state.home is None and self._set_home_at_first_fix(state, now):
             state = self.api.state()
+        self._sim_moving = state.t_ns > self._t_ns
         self._t_ns = max(self._t_ns, state.t_ns)
         mav = self.codec.mav
         outs: list[Out] = []
