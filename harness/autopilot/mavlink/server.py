@@ -75,7 +75,12 @@ class MavlinkCounters:
 
 
 class MavlinkServer:
-    """PX4-dialect MAVLink endpoint of one vehicle (system id ``vehicle + 1``, component 1)."""
+    """PX4-dialect MAVLink endpoint of one vehicle (system id ``vehicle + 1``, component 1).
+
+    ``tap`` is called (on the server thread) with every frame sent and every valid frame received: the
+    tlog writer. ``wall_ns`` / ``unix_ns`` are the wall clocks (monotonic, and Unix time for signing).
+    ``home_on_first_fix``: see ``_set_home_at_first_fix``.
+    """
 
     def __init__(
         self,
@@ -207,8 +212,6 @@ class MavlinkServer:
     # ------------------------------------------------------------------ receive
     def _on_datagram(self, link: int, data: bytes, addr: tuple[str, int], now: int) -> None:
         self._count("datagrams_rx")
-        if self._tap is not None:
-            self._tap(data)
         for d in self.codec.decode(data):
             if d.status is FrameStatus.MALFORMED:
                 self._count("malformed")
@@ -222,6 +225,8 @@ class MavlinkServer:
                 self._count("frames_rx")
                 self.links[link].heard(addr, now)
                 m = d.message
+                if self._tap is not None:
+                    self._tap(bytes(m.get_msgbuf()))
                 origin = Origin(link, addr, m.get_srcSystem(), m.get_srcComponent())
                 try:
                     self._dispatch(m, origin, now)
