@@ -62,6 +62,8 @@ class PositionControl:
         """Hover thrust in use (the flight core updates it from its in-flight estimate)."""
         self.thr = (0.0, 0.0, -params["MPC_THR_HOVER"])
         self.vel_sp = (0.0, 0.0, 0.0)
+        self.acc_z = 0.0
+        """Last vertical acceleration setpoint (NED, m/s²)."""
         self._load()
 
     def _load(self) -> None:
@@ -77,6 +79,16 @@ class PositionControl:
 
     def reset(self) -> None:
         self.ix = self.iy = self.iz = 0.0
+
+    def set_hover(self, hover: float) -> None:
+        """Change the hover thrust keeping the thrust output continuous (as PX4's updateHoverThrust)."""
+        if hover <= 0.0 or hover == self.hover:
+            return
+        a = self.acc_z
+        a_new = (a - G_M_S2) * self.hover / hover + G_M_S2
+        self.iz += a_new - a
+        self.acc_z = a_new
+        self.hover = hover
 
     def update(
         self,
@@ -118,6 +130,7 @@ class PositionControl:
         if ah > self.acc_hor_max:
             ax *= self.acc_hor_max / ah
             ay *= self.acc_hor_max / ah
+        self.acc_z = az
         # acceleration -> thrust vector (PX4: body z from the tilt, collective from the vertical part)
         bx, by, bz = -ax, -ay, G_M_S2
         bn = math.sqrt(bx * bx + by * by + bz * bz)

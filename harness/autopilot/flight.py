@@ -160,7 +160,7 @@ class FlightCore:
         hov = self.hover_thrust + (dt / 3.0) * (h - self.hover_thrust)
         hov = 0.1 if hov < 0.1 else (0.9 if hov > 0.9 else hov)
         self.hover_thrust = hov
-        self.pos_ctl.hover = hov
+        self.pos_ctl.set_hover(hov)
         self._hover = hov
 
     def _climb_requested(self, sp: object) -> bool:
