@@ -48,6 +48,7 @@ class Estimator:
         self.last_imu_ns = -(10**18)
         self.gps: Gps | None = None
         self._baro_ref: float | None = None
+        self._baro_n = 0
         self._ref_alt_sum = 0.0
         self._ref_alt_n = 0
         self._hist: list[tuple[int, float, float, float, float, float, float]] = []
@@ -71,7 +72,7 @@ class Estimator:
         self._decl = math.radians(p["EKF2_MAG_DECL"])
         self._tau_gps_p = 2.0 * p["EKF2_GPS_P_NOISE"]
         self._tau_gps_v = 1.0 * p["EKF2_GPS_V_NOISE"]
-        self._tau_baro = 0.6 * p["EKF2_BARO_NOISE"]
+        self._tau_baro = 2.0 * p["EKF2_BARO_NOISE"]
         self._req_sats = int(p["EKF2_REQ_NSATS"])
         self._req_eph = p["EKF2_REQ_EPH"]
 
@@ -224,11 +225,15 @@ class Estimator:
         return best
 
     def _fuse_baro(self, alt_m: float, t_ns: int) -> None:
+        self._baro_n += 1
         if self._baro_ref is None:
             self._baro_ref = alt_m + self.pd
             self.last_baro_ns = t_ns
             self.height_valid = True
             return
+        if self._baro_n <= 50:
+            # the local height origin: the average of the first samples, not one noisy sample
+            self._baro_ref += (alt_m + self.pd - self._baro_ref) / self._baro_n
         dt = (t_ns - self.last_baro_ns) * 1e-9
         self.last_baro_ns = t_ns
         if dt <= 0.0:

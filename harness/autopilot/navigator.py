@@ -117,6 +117,7 @@ class Navigator:
 
     # ---------- mode entry ----------
     def enter(self, mode: FlightMode, landed: bool) -> None:
+        prev, prev_target = self.mode, self.target
         self.mode = mode
         self.landing = False
         self.wants_climb = False
@@ -127,6 +128,8 @@ class Navigator:
         self._start_tracker()
         if mode in (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.ALTCTL):
             self.target = self._stop_point()
+            if prev == FlightMode.TAKEOFF and not landed:
+                self.target = (self.target[0], self.target[1], prev_target[2])  # loiter at the takeoff altitude
         elif mode == FlightMode.TAKEOFF:
             alt = self.takeoff_alt_m
             self.target = (self.est.pn, self.est.pe, self.home[2] - alt)
