@@ -228,7 +228,7 @@ class FlightCore:
         # in air or landing: ground contact = wants down, not moving, thrust well below hover
         landing = self.nav.landing
         self.landed_state = LandedState.LANDING if landing else LandedState.IN_AIR
-        wants_down = self.pos_ctl.vel_sp[2] > 0.1 or landing
+        wants_down = landing or (self.mode == FlightMode.OFFBOARD and self.pos_ctl.vel_sp[2] > 0.2)
         contact = (
             wants_down
             and abs(est.vd) < 0.3
