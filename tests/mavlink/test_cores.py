@@ -158,3 +158,18 @@ def test_retransmission_is_not_executed_twice() -> None:
     late = svc.handle(CommandIn(400, arm, confirmation=2), sender, 5_000_000_000)
     assert not late.replayed and ap.arms == 3
     assert svc.handle(CommandIn(31000, arm), sender, 0).result.result.name == "UNSUPPORTED"
+
+
+def test_mavftp_requests_get_a_nak_at_once() -> None:
+    from harness.autopilot.mavlink.ftp import ERR_FILE_NOT_FOUND, OP_NAK, nak
+    from harness.autopilot.mavlink.messages import Origin
+
+    req = struct.pack("<HBBBBBBI", 41, 0, 4, 16, 0, 0, 0, 0) + b"@PARAM/param.pck"
+    msg = MAV.file_transfer_protocol_encode(0, 1, 1, list(req) + [0] * (251 - len(req)))
+    origin = Origin(0, ("127.0.0.1", 1), 255, 190)
+    (out,) = nak(MAV, msg, origin)
+    seq, _session, opcode, size, req_opcode = struct.unpack_from("<HBBBB", bytes(out.msg.payload))
+    assert (seq, opcode, size, req_opcode) == (42, OP_NAK, 1, 4)
+    assert out.msg.payload[12] == ERR_FILE_NOT_FOUND and out.to == origin and out.msg.target_system == 255
+    reply = struct.pack("<HBBBBBBI", 42, 0, OP_NAK, 1, 4, 0, 0, 0)
+    assert nak(MAV, MAV.file_transfer_protocol_encode(0, 1, 1, list(reply) + [0] * (251 - len(reply))), origin) == []

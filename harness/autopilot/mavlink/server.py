@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import AutopilotApi, FlightMode, GeoPoint, Result, Severity, VehicleState
+from harness.autopilot.mavlink import ftp
 from harness.autopilot.mavlink.codec import Codec, FrameStatus, SigningConfig
 from harness.autopilot.mavlink.commands import CommandIn, CommandService
 from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule, heartbeat_message
@@ -235,6 +236,8 @@ class MavlinkServer:
                     self._log_once(e, f"handling {m.get_type()}")
 
     def _for_us(self, m: MAVLinkMessage) -> bool:
+        if getattr(m, "target_network", 0) != 0:
+            return False
         ts = getattr(m, "target_system", 0)
         tc = getattr(m, "target_component", 0)
         return ts in (0, self.sysid) and tc in (0, self.compid)
@@ -271,6 +274,8 @@ class MavlinkServer:
         elif mid == _M.MAVLINK_MSG_ID_PING and m.target_system == 0:
             mav = self.codec.mav
             self._send(Out(mav.ping_encode(m.time_usec, m.seq, origin.sysid, origin.compid), origin), now)
+        elif mid == _M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL:
+            self._send_all(ftp.nak(self.codec.mav, m, origin), now)
         elif mid == _M.MAVLINK_MSG_ID_TIMESYNC and m.tc1 == 0:
             self._send(Out(self.codec.mav.timesync_encode(now, m.ts1), origin), now)
 

@@ -27,8 +27,10 @@ SENSOR_ACCEL = 0x2
 SENSOR_MAG = 0x4
 SENSOR_BARO = 0x8
 SENSOR_GPS = 0x20
+SENSOR_GEOFENCE = 0x100000
+"""Healthy unless the geofence failsafe is active (MAVProxy reports 'fence breach' otherwise)."""
 SENSOR_PREARM = 0x10000000
-SENSORS_PRESENT = SENSOR_GYRO | SENSOR_ACCEL | SENSOR_MAG | SENSOR_BARO | SENSOR_GPS | SENSOR_PREARM
+SENSORS_PRESENT = SENSOR_GYRO | SENSOR_ACCEL | SENSOR_MAG | SENSOR_BARO | SENSOR_GPS | SENSOR_GEOFENCE | SENSOR_PREARM
 
 _I32 = 2**31 - 1
 
@@ -51,6 +53,7 @@ def health_bits(state: VehicleState) -> int:
         (h.baro_ok, SENSOR_BARO),
         (h.gps_ok, SENSOR_GPS),
         (h.preflight_ok, SENSOR_PREARM),
+        (state.failsafe != "geofence", SENSOR_GEOFENCE),
     ):
         if ok:
             bits |= bit
