@@ -45,6 +45,9 @@ def test_streams_flow_while_paused_and_time_boot_ms_is_sim_time(gcs: Gcs, idle_r
         assert bits & SENSOR_GYRO and bits & SENSOR_GPS and bits & SENSOR_PREARM
     ext = next(m for _, m in msgs if m.get_type() == "EXTENDED_SYS_STATE")
     assert ext.landed_state == M.MAV_LANDED_STATE_ON_GROUND
+    alt = gcs.recv("ALTITUDE", 1.0)
+    state = idle_rig.ap.state()
+    assert abs(alt.altitude_amsl - state.alt_amsl_m) < 1e-3 and abs(alt.altitude_relative - state.rel_alt_m) < 1e-3
 
 
 def test_autopilot_version_capabilities(gcs: Gcs, idle_rig: Rig) -> None:

@@ -219,6 +219,14 @@ def highres_imu(mav: mavlink2.MAVLink, s: VehicleState, _t: int) -> MAVLinkMessa
     )
 
 
+def altitude(mav: mavlink2.MAVLink, s: VehicleState, _t: int) -> MAVLinkMessage:
+    """ALTITUDE (MAVSDK ``telemetry.altitude``): AMSL, local (up), above home; no terrain data."""
+    amsl = finite(s.alt_amsl_m)
+    return mav.altitude_encode(
+        s.t_ns // 1000, amsl, amsl, -finite(s.pos_ned_m[2]), finite(s.rel_alt_m), math.nan, math.nan
+    )
+
+
 def system_time(mav: mavlink2.MAVLink, s: VehicleState, t: int) -> MAVLinkMessage:
     return mav.system_time_encode(0, t)
 
@@ -237,6 +245,7 @@ BUILDERS: dict[int, Builder] = {
     mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: mission_current,
     mavlink2.MAVLINK_MSG_ID_HIGHRES_IMU: highres_imu,
     mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME: system_time,
+    mavlink2.MAVLINK_MSG_ID_ALTITUDE: altitude,
 }
 """Every message a GCS can request (512) or stream (511), by message id."""
 
@@ -252,6 +261,7 @@ DEFAULT_INTERVALS_NS: dict[int, int] = {
     mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: _HZ // 2,
     mavlink2.MAVLINK_MSG_ID_VFR_HUD: _HZ // 4,
     mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: _HZ,
+    mavlink2.MAVLINK_MSG_ID_ALTITUDE: _HZ // 2,
 }
 """Default stream intervals; messages not listed are sent only on request or event."""
 
