@@ -1,0 +1,255 @@
+"""Physics of N quad-X vehicles in JSBSim, stepped in lockstep: the clock owner of a run.
+
+``Physics.step(motors)`` applies one command per vehicle for one tick (``substep_hz / tick_hz`` JSBSim
+steps) and returns every vehicle's sensor frame at the new tick. Commands are validated first: NaN,
+infinite or out-of-range values are clamped (NaN to 0) and counted, never passed to JSBSim. A vehicle
+that hits the ground faster than ``crash_speed_m_s`` is marked crashed (reported in its frame, motors
+cut), never silently bounced.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import jsbsim
+import numpy as np
+
+from harness.errors import ScenarioError, SimulationError
+from harness.fdm.environment import Turbulence, WindConfig, WorldOrigin
+from harness.fdm.frame import MOTOR_COUNT, SensorFrame, Truth
+from harness.fdm.params import DEFAULT_QUAD, FT_PER_M, G_M_S2, M_PER_FT, N_PER_LBF, QuadParams, models_root
+from harness.fdm.sensors import SensorConfig, SensorModel
+
+Vec3 = tuple[float, float, float]
+
+_READ = (
+    "position/lat-geod-deg",
+    "position/long-gc-deg",
+    "position/h-sl-ft",
+    "velocities/v-north-fps",
+    "velocities/v-east-fps",
+    "velocities/v-down-fps",
+    "attitude/phi-rad",
+    "attitude/theta-rad",
+    "attitude/psi-rad",
+    "velocities/p-rad_sec",
+    "velocities/q-rad_sec",
+    "velocities/r-rad_sec",
+    "forces/fbx-total-lbs",
+    "forces/fby-total-lbs",
+    "forces/fbz-total-lbs",
+    "forces/fbz-gear-lbs",
+)
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    n_vehicles: int = 1
+    seed: int = 0
+    substep_hz: float = 1000.0
+    tick_hz: float = 250.0
+    origin: WorldOrigin = field(default_factory=WorldOrigin)
+    wind: WindConfig = field(default_factory=WindConfig)
+    spawn_ned_m: tuple[Vec3, ...] | None = None
+    """Where each vehicle starts (on the ground when d = 0); default: a grid 5 m apart."""
+    spawn_spacing_m: float = 5.0
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+    drag: bool = True
+    crash_speed_m_s: float = 3.0
+    quad: QuadParams = DEFAULT_QUAD
+
+    def __post_init__(self) -> None:
+        if self.n_vehicles < 1:
+            raise ScenarioError(f"physics: n_vehicles must be >= 1, got {self.n_vehicles}")
+        if not self.tick_hz > 0 or not self.substep_hz > 0:
+            raise ScenarioError(f"physics: rates must be > 0 (substep_hz={self.substep_hz}, tick_hz={self.tick_hz})")
+        ratio = self.substep_hz / self.tick_hz
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ScenarioError(
+                f"physics: substep_hz ({self.substep_hz}) must be a whole multiple of tick_hz ({self.tick_hz})"
+            )
+        if self.spawn_ned_m is not None and len(self.spawn_ned_m) != self.n_vehicles:
+            raise ScenarioError(
+                f"physics: {len(self.spawn_ned_m)} spawn positions given for {self.n_vehicles} vehicles"
+            )
+
+    def spawn(self, i: int) -> Vec3:
+        if self.spawn_ned_m is not None:
+            return self.spawn_ned_m[i]
+        cols = max(1, math.ceil(math.sqrt(self.n_vehicles)))
+        return (-(i // cols) * self.spawn_spacing_m, (i % cols) * self.spawn_spacing_m, 0.0)
+
+
+@dataclass
+class VehicleCounters:
+    clamped_commands: int = 0
+    nan_commands: int = 0
+
+
+jsbsim.FGJSBBase().debug_lvl = 0  # no start-up banner on stdout (a mission's or the CLI's output)
+
+
+class _Vehicle:
+    def __init__(self, index: int, cfg: PhysicsConfig, rng: np.random.Generator) -> None:
+        self.index = index
+        self.cfg = cfg
+        q = cfg.quad
+        fdm = jsbsim.FGFDMExec(str(models_root()), None)
+        fdm.set_debug_level(0)
+        if not fdm.load_model("quadx"):
+            raise SimulationError("JSBSim could not load the quadx model from the package data")
+        n, e, d = cfg.spawn(index)
+        lat, lon, _ = cfg.origin.ned_to_geodetic(n, e, 0.0)
+        fdm["ic/terrain-elevation-ft"] = cfg.origin.alt_amsl_m * FT_PER_M
+        fdm["ic/lat-geod-deg"] = lat
+        fdm["ic/long-gc-deg"] = lon
+        fdm["ic/h-agl-ft"] = (max(0.0, -d) + q.skid_below_cg_m) * FT_PER_M
+        fdm["ic/psi-true-deg"] = 0.0
+        fdm.set_dt(1.0 / cfg.substep_hz)
+        if not cfg.drag:
+            fdm["aero/cda-ft2"] = 0.0
+            fdm["aero/rotor-drag-lbf-per-fps"] = 0.0
+        if not fdm.run_ic():
+            raise SimulationError(f"JSBSim refused the initial conditions of vehicle {index}")
+        pm = fdm.get_property_manager()
+        self.fdm = fdm
+        self.cmd_nodes = [pm.get_node(f"fcs/motor-cmd[{i}]", False) for i in range(MOTOR_COUNT)]
+        self.read_nodes = [pm.get_node(name, False) for name in _READ]
+        self.wind_nodes = [pm.get_node(f"atmosphere/wind-{a}-fps", False) for a in ("north", "east", "down")]
+        self.sensors = SensorModel(cfg.sensors, rng, round(1e9 / cfg.tick_hz), cfg.origin.magnetic_field_ned_gauss())
+        self.turbulence = Turbulence(cfg.wind, rng)
+        self.counters = VehicleCounters()
+        self.crashed = False
+        self.airborne = False
+        self.last_v_down = 0.0
+        self.impact_speed_m_s = 0.0
+        self.motors = (0.0, 0.0, 0.0, 0.0)
+
+
+def _quat_from_euler(phi: float, theta: float, psi: float) -> tuple[float, float, float, float]:
+    cr, sr = math.cos(phi / 2), math.sin(phi / 2)
+    cp, sp = math.cos(theta / 2), math.sin(theta / 2)
+    cy, sy = math.cos(psi / 2), math.sin(psi / 2)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+class Physics:
+    """N vehicles in lockstep. Not thread-safe: one caller steps it."""
+
+    def __init__(self, cfg: PhysicsConfig) -> None:
+        self.cfg = cfg
+        self.substeps = round(cfg.substep_hz / cfg.tick_hz)
+        self.tick_ns = round(1e9 / cfg.tick_hz)
+        seeds = np.random.SeedSequence(cfg.seed).spawn(cfg.n_vehicles)
+        self.vehicles = [_Vehicle(i, cfg, np.random.default_rng(s)) for i, s in enumerate(seeds)]
+        self._t_ns = 0
+        self._tick = 0
+        self._frames = [self._frame(v) for v in self.vehicles]
+
+    @property
+    def t_ns(self) -> int:
+        return self._t_ns
+
+    @property
+    def tick(self) -> int:
+        return self._tick
+
+    def frames(self) -> list[SensorFrame]:
+        return list(self._frames)
+
+    def counters(self, vehicle: int) -> VehicleCounters:
+        return self.vehicles[vehicle].counters
+
+    def crashed(self, vehicle: int) -> bool:
+        return self.vehicles[vehicle].crashed
+
+    def set_wind(self, wind: WindConfig) -> None:
+        """Change the wind of every vehicle (tests, scenario events)."""
+        for v in self.vehicles:
+            v.turbulence = Turbulence(wind, v.sensors.rng)
+
+    def step(self, motors: Sequence[Sequence[float]]) -> list[SensorFrame]:
+        if len(motors) != len(self.vehicles):
+            raise SimulationError(
+                f"physics: got motor commands for {len(motors)} vehicles, simulating {len(self.vehicles)}"
+            )
+        dt_tick = self.tick_ns * 1e-9
+        for v, cmd in zip(self.vehicles, motors, strict=True):
+            u = self._validate(v, cmd)
+            v.motors = u
+            for node, value in zip(v.cmd_nodes, u, strict=True):
+                node.set_double_value(value)
+            wn, we, wd = v.turbulence.step(dt_tick)
+            v.wind_nodes[0].set_double_value(wn * FT_PER_M)
+            v.wind_nodes[1].set_double_value(we * FT_PER_M)
+            v.wind_nodes[2].set_double_value(wd * FT_PER_M)
+            run = v.fdm.run
+            for _ in range(self.substeps):
+                run()
+        self._t_ns += self.tick_ns
+        self._tick += 1
+        self._frames = [self._frame(v) for v in self.vehicles]
+        return list(self._frames)
+
+    def _validate(self, v: _Vehicle, cmd: Sequence[float]) -> tuple[float, float, float, float]:
+        if len(cmd) != MOTOR_COUNT:
+            raise SimulationError(
+                f"physics: vehicle {v.index} got {len(cmd)} motor commands, a quad-X needs {MOTOR_COUNT}"
+            )
+        if v.crashed:
+            return (0.0, 0.0, 0.0, 0.0)
+        out = []
+        for x in cmd:
+            x = float(x)
+            if x != x:  # NaN
+                v.counters.nan_commands += 1
+                v.counters.clamped_commands += 1
+                x = 0.0
+            elif x < 0.0 or x > 1.0:  # also catches ±inf
+                v.counters.clamped_commands += 1
+                x = 0.0 if x < 0.0 else 1.0
+            out.append(x)
+        return (out[0], out[1], out[2], out[3])
+
+    def _frame(self, v: _Vehicle) -> SensorFrame:
+        (lat, lon, h_ft, vn, ve, vd, phi, theta, psi, p, q, r, fx, fy, fz, fgear) = [
+            n.get_double_value() for n in v.read_nodes
+        ]
+        cfg = self.cfg
+        alt = h_ft * M_PER_FT
+        pos = cfg.origin.geodetic_to_ned(lat, lon, alt)
+        vel = (vn * M_PER_FT, ve * M_PER_FT, vd * M_PER_FT)
+        quat = _quat_from_euler(phi, theta, psi)
+        m = cfg.quad.mass_kg
+        sf = (fx * N_PER_LBF / m, fy * N_PER_LBF / m, fz * N_PER_LBF / m)
+        on_ground = fgear < -1e-3
+        if on_ground:
+            if v.airborne and not v.crashed:
+                v.impact_speed_m_s = v.last_v_down
+                if v.last_v_down > cfg.crash_speed_m_s:
+                    v.crashed = True
+            v.airborne = False
+        elif pos[2] < -(0.05):
+            v.airborne = True
+        v.last_v_down = vel[2]
+        acc = _accel_ned(quat, sf)
+        truth = Truth(pos, vel, quat, (p, q, r), acc, lat, lon, alt, on_ground, v.crashed)
+        imu, mag, baro, gps = v.sensors.sample(self._t_ns, quat, sf, (p, q, r), lat, lon, alt, vel)
+        return SensorFrame(self._t_ns, v.index, imu, truth, mag, baro, gps)
+
+
+def _accel_ned(q: tuple[float, float, float, float], sf: Vec3) -> Vec3:
+    w, x, y, z = q
+    ax, ay, az = sf
+    return (
+        (1 - 2 * (y * y + z * z)) * ax + 2 * (x * y - w * z) * ay + 2 * (x * z + w * y) * az,
+        2 * (x * y + w * z) * ax + (1 - 2 * (x * x + z * z)) * ay + 2 * (y * z - w * x) * az,
+        2 * (x * z - w * y) * ax + 2 * (y * z + w * x) * ay + (1 - 2 * (x * x + y * y)) * az + G_M_S2,
+    )

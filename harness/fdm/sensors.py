@@ -1,0 +1,192 @@
+"""Sensor models: IMU, magnetometer, barometer and GPS with rates, noise, bias, drift and latency.
+
+Pure per-vehicle state fed with ground truth every tick; all randomness from the vehicle's own seeded
+``numpy.random.Generator``, drawn in a fixed order, so the same seed gives bit-identical streams.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness.errors import ScenarioError
+from harness.fdm.frame import Baro, Gps, Imu, Mag, Vec3
+
+Quat = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    noise: bool = True
+    """Master switch: False gives ideal sensors (no noise, bias, drift; latency and rates stay)."""
+    accel_noise_m_s2: float = 0.05
+    """White noise, standard deviation per sample."""
+    accel_bias_m_s2: Vec3 = (0.03, -0.02, 0.04)
+    """Turn-on bias (what a calibration would leave)."""
+    accel_bias_walk_m_s2_sqrt_s: float = 0.0005
+    gyro_noise_rad_s: float = 0.004
+    gyro_bias_rad_s: Vec3 = (0.002, -0.0015, 0.001)
+    gyro_bias_walk_rad_s_sqrt_s: float = 0.00005
+    mag_rate_hz: float = 50.0
+    mag_noise_gauss: float = 0.003
+    mag_bias_gauss: Vec3 = (0.002, -0.001, 0.0015)
+    baro_rate_hz: float = 50.0
+    baro_noise_m: float = 0.1
+    """Pressure noise, expressed as the altitude it amounts to."""
+    baro_bias_m: float = 0.3
+    baro_drift_m_sqrt_s: float = 0.005
+    gps_rate_hz: float = 10.0
+    gps_latency_s: float = 0.1
+    gps_noise_m: float = 0.3
+    """Horizontal position error, standard deviation of a slowly varying (τ = gps_error_tau_s) error."""
+    gps_alt_noise_m: float = 0.5
+    gps_error_tau_s: float = 20.0
+    gps_vel_noise_m_s: float = 0.05
+    gps_fix_type: int = 3
+    gps_satellites: int = 12
+
+    def __post_init__(self) -> None:
+        for name in ("mag_rate_hz", "baro_rate_hz", "gps_rate_hz", "gps_error_tau_s"):
+            if not getattr(self, name) > 0:
+                raise ScenarioError(f"sensors: {name} must be > 0, got {getattr(self, name)}")
+        if self.gps_latency_s < 0:
+            raise ScenarioError(f"sensors: gps_latency_s must be >= 0, got {self.gps_latency_s}")
+
+
+def isa_pressure_pa(alt_amsl_m: float) -> float:
+    return 101325.0 * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
+
+
+def isa_altitude_m(pressure_pa: float) -> float:
+    return (1.0 - (pressure_pa / 101325.0) ** (1.0 / 5.25588)) / 2.25577e-5
+
+
+def rotate_ned_to_body(q: Quat, v: Vec3) -> Vec3:
+    """v_body = R(q)ᵀ v_ned for q rotating body to NED."""
+    w, x, y, z = q
+    vx, vy, vz = v
+    # R^T v, expanded
+    r00 = 1 - 2 * (y * y + z * z)
+    r01 = 2 * (x * y - w * z)
+    r02 = 2 * (x * z + w * y)
+    r10 = 2 * (x * y + w * z)
+    r11 = 1 - 2 * (x * x + z * z)
+    r12 = 2 * (y * z - w * x)
+    r20 = 2 * (x * z - w * y)
+    r21 = 2 * (y * z + w * x)
+    r22 = 1 - 2 * (x * x + y * y)
+    return (r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz)
+
+
+@dataclass
+class _GpsSample:
+    t_ns: int
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    vel_ned_m_s: Vec3
+
+
+class SensorModel:
+    """The sensors of one vehicle. Call :meth:`sample` once per tick with the truth of that tick."""
+
+    def __init__(self, cfg: SensorConfig, rng: np.random.Generator, tick_ns: int, mag_ned_gauss: Vec3) -> None:
+        self.cfg = cfg
+        self.rng = rng
+        self.tick_ns = tick_ns
+        self.mag_ned = mag_ned_gauss
+        on = 1.0 if cfg.noise else 0.0
+        self._on = on
+        self.accel_bias = [on * b for b in cfg.accel_bias_m_s2]
+        self.gyro_bias = [on * b for b in cfg.gyro_bias_rad_s]
+        self.baro_bias_m = on * cfg.baro_bias_m
+        self._gps_err = [0.0, 0.0, 0.0]
+        self._history: collections.deque[_GpsSample] = collections.deque()
+        self._next_mag = 0
+        self._next_baro = 0
+        self._next_gps = round(cfg.gps_latency_s * 1e9)
+        self._mag_period = round(1e9 / cfg.mag_rate_hz)
+        self._baro_period = round(1e9 / cfg.baro_rate_hz)
+        self._gps_period = round(1e9 / cfg.gps_rate_hz)
+        self._latency_ns = round(cfg.gps_latency_s * 1e9)
+        dt = tick_ns * 1e-9
+        self._walk_accel = cfg.accel_bias_walk_m_s2_sqrt_s * math.sqrt(dt) * on
+        self._walk_gyro = cfg.gyro_bias_walk_rad_s_sqrt_s * math.sqrt(dt) * on
+        self._walk_baro = cfg.baro_drift_m_sqrt_s * math.sqrt(dt) * on
+        gps_dt = self._gps_period * 1e-9
+        self._gps_a = math.exp(-gps_dt / cfg.gps_error_tau_s)
+        self._gps_b = math.sqrt(1.0 - self._gps_a**2) * on
+
+    def sample(
+        self,
+        t_ns: int,
+        q: Quat,
+        specific_force_body_m_s2: Vec3,
+        rates_body_rad_s: Vec3,
+        lat_deg: float,
+        lon_deg: float,
+        alt_amsl_m: float,
+        vel_ned_m_s: Vec3,
+    ) -> tuple[Imu, Mag | None, Baro | None, Gps | None]:
+        cfg, on = self.cfg, self._on
+        z = self.rng.standard_normal(12)  # a fixed number of draws per tick keeps the streams aligned
+        ab, gb = self.accel_bias, self.gyro_bias
+        for i in range(3):
+            ab[i] += self._walk_accel * float(z[i])
+            gb[i] += self._walk_gyro * float(z[3 + i])
+        an, gn = cfg.accel_noise_m_s2 * on, cfg.gyro_noise_rad_s * on
+        sf, w = specific_force_body_m_s2, rates_body_rad_s
+        imu = Imu(
+            (sf[0] + ab[0] + an * float(z[6]), sf[1] + ab[1] + an * float(z[7]), sf[2] + ab[2] + an * float(z[8])),
+            (w[0] + gb[0] + gn * float(z[9]), w[1] + gb[1] + gn * float(z[10]), w[2] + gb[2] + gn * float(z[11])),
+        )
+        self.baro_bias_m += self._walk_baro * float(self.rng.standard_normal())
+        mag = baro = gps = None
+        if t_ns >= self._next_mag:
+            self._next_mag += self._mag_period
+            m = rotate_ned_to_body(q, self.mag_ned)
+            mz = self.rng.standard_normal(3)
+            mn, mb = cfg.mag_noise_gauss * on, cfg.mag_bias_gauss
+            mag = Mag(
+                (
+                    m[0] + on * mb[0] + mn * float(mz[0]),
+                    m[1] + on * mb[1] + mn * float(mz[1]),
+                    m[2] + on * mb[2] + mn * float(mz[2]),
+                )
+            )
+        if t_ns >= self._next_baro:
+            self._next_baro += self._baro_period
+            measured_alt = alt_amsl_m + self.baro_bias_m + cfg.baro_noise_m * on * float(self.rng.standard_normal())
+            pressure = isa_pressure_pa(measured_alt)
+            baro = Baro(pressure, 15.0 - 0.0065 * alt_amsl_m, isa_altitude_m(pressure))
+        self._history.append(_GpsSample(t_ns, lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s))
+        while len(self._history) > 1 and self._history[1].t_ns <= t_ns - self._latency_ns:
+            self._history.popleft()
+        if t_ns >= self._next_gps:
+            self._next_gps += self._gps_period
+            old = self._history[0]
+            gz = self.rng.standard_normal(6)
+            e = self._gps_err
+            for i in range(3):
+                e[i] = self._gps_a * e[i] + self._gps_b * float(gz[i])
+            rm = 6371000.0
+            vn = cfg.gps_vel_noise_m_s * on
+            gps = Gps(
+                old.lat_deg + math.degrees(e[0] * cfg.gps_noise_m / rm),
+                old.lon_deg + math.degrees(e[1] * cfg.gps_noise_m / (rm * math.cos(math.radians(old.lat_deg)))),
+                old.alt_amsl_m + e[2] * cfg.gps_alt_noise_m,
+                (
+                    old.vel_ned_m_s[0] + vn * float(gz[3]),
+                    old.vel_ned_m_s[1] + vn * float(gz[4]),
+                    old.vel_ned_m_s[2] + vn * float(gz[5]),
+                ),
+                cfg.gps_fix_type,
+                max(0.5, cfg.gps_noise_m * 2.0),
+                max(0.8, cfg.gps_alt_noise_m * 2.0),
+                cfg.gps_satellites,
+                old.t_ns,
+            )
+        return imu, mag, baro, gps
