@@ -115,9 +115,16 @@ class _Vehicle:
             raise SimulationError(f"JSBSim refused the initial conditions of vehicle {index}")
         pm = fdm.get_property_manager()
         self.fdm = fdm
-        self.cmd_nodes = [pm.get_node(f"fcs/motor-cmd[{i}]", False) for i in range(MOTOR_COUNT)]
-        self.read_nodes = [pm.get_node(name, False) for name in _READ]
-        self.wind_nodes = [pm.get_node(f"atmosphere/wind-{a}-fps", False) for a in ("north", "east", "down")]
+
+        def node(name: str) -> jsbsim.FGPropertyNode:
+            found = pm.get_node(name, False)
+            if found is None:
+                raise SimulationError(f"JSBSim model quadx has no property {name}")
+            return found
+
+        self.cmd_nodes = [node(f"fcs/motor-cmd[{i}]") for i in range(MOTOR_COUNT)]
+        self.read_nodes = [node(name) for name in _READ]
+        self.wind_nodes = [node(f"atmosphere/wind-{a}-fps") for a in ("north", "east", "down")]
         self.sensors = SensorModel(cfg.sensors, rng, round(1e9 / cfg.tick_hz), cfg.origin.magnetic_field_ned_gauss())
         self.turbulence = Turbulence(cfg.wind, rng)
         self.counters = VehicleCounters()
