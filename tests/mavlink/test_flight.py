@@ -78,7 +78,10 @@ def test_reposition_command_int_and_orbit(gcs: Gcs, flying_rig: Rig) -> None:
         gcs.collect(0.2)
     n, e, d = flying_rig.sim.pos
     assert abs(n - 10.0) < 0.7 and abs(e) < 0.7 and abs(-d - 6.0) < 0.7
-    ack = gcs.command(M.MAV_CMD_DO_ORBIT, 5.0, 2.0, 0, math.nan, math.nan, math.nan, math.nan)
+    # exactly what MAVSDK's do_orbit(5, 2, ..., NaN, NaN, NaN) sends: COMMAND_INT, frame GLOBAL_RELATIVE_ALT,
+    # x = y = int32(round(NaN * 1e7)) = INT32_MIN on x86, z NaN (centre = here)
+    int32_min = -(2**31)
+    ack = gcs.command_int(M.MAV_CMD_DO_ORBIT, 3, 5.0, 2.0, 0, math.nan, int32_min, int32_min, math.nan)
     assert ack.result == M.MAV_RESULT_ACCEPTED
     gcs.collect(6.0)
     n, e, _ = flying_rig.sim.pos

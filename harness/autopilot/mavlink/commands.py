@@ -38,6 +38,12 @@ CMD_INJECT_FAILURE = 420
 FORCE_MAGIC = 21196
 RETRANSMIT_WINDOW_NS = 3_000_000_000
 _AUTOPILOT_VERSION_ID = mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+_GLOBAL_FRAMES = (MavFrame.GLOBAL, MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_INT, MavFrame.GLOBAL_RELATIVE_ALT_INT)
+"""COMMAND_INT frames for a global position; the _INT and plain names mean the same here (MAVSDK's
+do_orbit sends GLOBAL_RELATIVE_ALT)."""
+_INT_UNSET = (INT32_MAX, -INT32_MAX - 1)
+"""COMMAND_INT x/y meaning 'unset': INT32_MAX (MAVLink), and INT32_MIN, which is what MAVSDK's
+``int32_t(round(NAN * 1e7))`` yields on x86 (its do_orbit with NaN centre)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,8 +139,8 @@ class CommandService:
             lat = p[4] if is_set(p[4]) else None
             lon = p[5] if is_set(p[5]) else None
         else:
-            lat = None if int(p[4]) == INT32_MAX else p[4] * 1e-7
-            lon = None if int(p[5]) == INT32_MAX else p[5] * 1e-7
+            lat = None if int(p[4]) in _INT_UNSET else p[4] * 1e-7
+            lon = None if int(p[5]) in _INT_UNSET else p[5] * 1e-7
         alt = p[6] if is_set(p[6]) else None
         for name, v in (("latitude", lat), ("longitude", lon), ("altitude", alt)):
             if v is not None and not math.isfinite(v):
@@ -143,13 +149,13 @@ class CommandService:
             return f"latitude {lat} outside [-90, 90]"
         if lon is not None and abs(lon) > 180.0:
             return f"longitude {lon} outside [-180, 180]"
+        if cmd.frame is not None and cmd.frame not in _GLOBAL_FRAMES:
+            return f"frame {cmd.frame} not supported (use GLOBAL_INT or GLOBAL_RELATIVE_ALT_INT)"
         if alt is not None and cmd.frame in (MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_RELATIVE_ALT_INT):
             home = self.api.state().home
             if home is None:
                 return "altitude relative to home given but there is no home position yet"
             alt += home.alt_amsl_m
-        elif cmd.frame is not None and cmd.frame not in (MavFrame.GLOBAL, MavFrame.GLOBAL_INT):
-            return f"frame {cmd.frame} not supported (use GLOBAL_INT or GLOBAL_RELATIVE_ALT_INT)"
         return (lat, lon, alt)
 
     # ------------------------------------------------------------------ commands
