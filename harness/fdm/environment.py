@@ -58,17 +58,33 @@ class WorldOrigin:
         return h * math.cos(decl), h * math.sin(decl), z
 
 
+TURBULENCE_LEVELS = {"none": 0.0, "light": 0.5, "moderate": 1.5, "severe": 3.0}
+"""Gust standard deviation [m/s] near the ground for the usual turbulence levels (MIL-F-8785C order of
+magnitude at low altitude)."""
+
+
 @dataclass(frozen=True)
 class WindConfig:
     steady_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Mean wind vector (where the air moves to) in the world frame."""
-    turbulence: float = 0.0
-    """Standard deviation of the gusts [m/s] on each axis (light ≈ 0.5, moderate ≈ 1.5)."""
+    turbulence: float | str = 0.0
+    """Gust strength: the standard deviation [m/s] on each horizontal axis, or a level name from
+    :data:`TURBULENCE_LEVELS` ("none", "light", "moderate", "severe")."""
     turbulence_length_m: float = 50.0
     """Dryden scale length: gusts decorrelate after flying (or the wind carrying) this distance."""
 
+    @property
+    def turbulence_sigma_m_s(self) -> float:
+        if isinstance(self.turbulence, str):
+            return TURBULENCE_LEVELS[self.turbulence]
+        return float(self.turbulence)
+
     def __post_init__(self) -> None:
-        if self.turbulence < 0 or self.turbulence_length_m <= 0:
+        if isinstance(self.turbulence, str) and self.turbulence not in TURBULENCE_LEVELS:
+            raise ScenarioError(
+                f"wind: turbulence {self.turbulence!r} is not one of {sorted(TURBULENCE_LEVELS)} or a number"
+            )
+        if self.turbulence_sigma_m_s < 0 or self.turbulence_length_m <= 0:
             raise ScenarioError(
                 f"wind: turbulence must be >= 0 and turbulence_length_m > 0, got {self.turbulence}, "
                 f"{self.turbulence_length_m}"
@@ -91,7 +107,7 @@ class Turbulence:
 
     def step(self, dt_s: float) -> tuple[float, float, float]:
         """Advance by ``dt_s`` and return the wind (steady + gust) in NED [m/s]."""
-        sigma = self.cfg.turbulence
+        sigma = self.cfg.turbulence_sigma_m_s
         w = self.cfg.steady_ned_m_s
         if sigma <= 0:
             return w

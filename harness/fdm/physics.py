@@ -17,12 +17,14 @@ import jsbsim
 import numpy as np
 
 from harness.errors import ScenarioError, SimulationError
-from harness.fdm.environment import Turbulence, WindConfig, WorldOrigin
+from harness.fdm.environment import TURBULENCE_LEVELS, Turbulence, WindConfig, WorldOrigin
 from harness.fdm.frame import MOTOR_COUNT, SensorFrame, Truth
 from harness.fdm.params import DEFAULT_QUAD, FT_PER_M, G_M_S2, M_PER_FT, N_PER_LBF, QuadParams, models_root
 from harness.fdm.sensors import SensorConfig, SensorModel
 
 Vec3 = tuple[float, float, float]
+
+__all__ = ["TURBULENCE_LEVELS", "Physics", "PhysicsConfig", "SensorConfig", "WindConfig", "WorldOrigin"]
 
 _READ = (
     "position/lat-geod-deg",
@@ -58,6 +60,8 @@ class PhysicsConfig:
     sensors: SensorConfig = field(default_factory=SensorConfig)
     drag: bool = True
     crash_speed_m_s: float = 3.0
+    tip_over_deg: float = 60.0
+    """Tilt at which a vehicle touching the ground has tipped over (crashed)."""
     quad: QuadParams = DEFAULT_QUAD
 
     def __post_init__(self) -> None:
@@ -236,12 +240,15 @@ class Physics:
         quat = _quat_from_euler(phi, theta, psi)
         m = cfg.quad.mass_kg
         sf = (fx * N_PER_LBF / m, fy * N_PER_LBF / m, fz * N_PER_LBF / m)
-        on_ground = fgear < -1e-3
+        on_ground = abs(fgear) > 1e-3
         if on_ground:
             if v.airborne and not v.crashed:
                 v.impact_speed_m_s = v.last_v_down
                 if v.last_v_down > cfg.crash_speed_m_s:
                     v.crashed = True
+            upright = 1.0 - 2.0 * (quat[1] ** 2 + quat[2] ** 2)  # cosine of the tilt
+            if upright < math.cos(math.radians(cfg.tip_over_deg)):
+                v.crashed = True  # lying on its side or back
             v.airborne = False
         elif pos[2] < -(0.05):
             v.airborne = True
