@@ -93,6 +93,9 @@ def test_upload_retries_a_lost_request_and_clear_all(gcs: Gcs, idle_rig: Rig) ->
     assert ack.type == M.MAV_MISSION_ACCEPTED  # type: ignore[attr-defined]
     gcs.send(gcs.mav.mission_set_current_encode(1, 1, 3))
     assert gcs.recv("MISSION_CURRENT", 3.0, lambda m: m.seq == 3).total == 5
+    assert gcs.command(224, 1, 0).result == M.MAV_RESULT_ACCEPTED  # the command form
+    assert gcs.recv("MISSION_CURRENT", 3.0, lambda m: m.seq == 1).total == 5
+    assert gcs.command(224, 9, 0).result == M.MAV_RESULT_DENIED
     gcs.send(gcs.mav.mission_clear_all_encode(1, 1, 0))
     assert gcs.recv("MISSION_ACK").type == M.MAV_MISSION_ACCEPTED
     assert idle_rig.ap.download_mission() == ()

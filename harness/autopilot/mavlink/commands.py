@@ -35,6 +35,7 @@ CMD_REQUEST_MESSAGE = 512
 CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
 CMD_GET_HOME_POSITION = 410
 CMD_INJECT_FAILURE = 420
+CMD_DO_SET_MISSION_CURRENT = 224
 FORCE_MAGIC = 21196
 RETRANSMIT_WINDOW_NS = 3_000_000_000
 _AUTOPILOT_VERSION_ID = mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION
@@ -105,6 +106,7 @@ class CommandService:
             MavCmd.DO_ORBIT: self._orbit,
             MavCmd.DO_SET_HOME: self._set_home,
             CMD_INJECT_FAILURE: self._inject_failure,
+            CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
             CMD_REQUEST_MESSAGE: self._request_message,
             CMD_REQUEST_AUTOPILOT_CAPABILITIES: lambda c: self._send_message(_AUTOPILOT_VERSION_ID),
@@ -224,6 +226,17 @@ class CommandService:
             if not r.ok:
                 return CommandOutcome(r)
         return self._mode_cmd(self.api.start_mission())
+
+    def _set_mission_current(self, cmd: CommandIn) -> CommandOutcome:
+        """224: param1 the item (-1 = keep), param2 1 = reset the mission (start again from item 0)."""
+        seq, reset = cmd.params[0], cmd.params[1]
+        if not math.isfinite(seq) or (seq < 0 and seq != -1):
+            return CommandOutcome(CommandResult.denied(f"Set mission current denied: item {seq} is invalid"))
+        if reset == 1.0 and seq == -1:
+            seq = 0.0
+        if seq == -1:
+            return CommandOutcome(CommandResult.accepted())
+        return CommandOutcome(self.api.set_current_item(int(seq)))
 
     def _change_speed(self, cmd: CommandIn) -> CommandOutcome:
         speed = cmd.params[1]
