@@ -1,7 +1,7 @@
 """Battery model: charge drawn by the motors' electrical power, open-circuit voltage curve, voltage sag.
 
-Motor electrical power is ``SIM_MOT_POWER · u^1.5`` for a normalised command ``u`` (thrust grows with u²,
-aerodynamic power with thrust^1.5), plus a small avionics load. ``SIM_BAT_DRAIN`` multiplies the drain so
+Motor electrical power is ``SIM_MOT_POWER · u³`` for a normalised command ``u`` (thrust grows with u²,
+induced power with thrust^1.5), plus a small avionics load: about 180 W at the FDM's hover command 0.72. ``SIM_BAT_DRAIN`` multiplies the drain so
 tests can reach the low-battery thresholds in seconds.
 """
 
@@ -35,7 +35,7 @@ class Battery:
     def update(self, motors: tuple[float, ...], armed: bool, dt: float) -> None:
         p = self.params
         pm = p["SIM_MOT_POWER"]
-        power = AVIONICS_W + (sum(pm * (u**1.5) for u in motors) if armed else 0.0)
+        power = AVIONICS_W + (sum(pm * u * u * u for u in motors) if armed else 0.0)
         v_oc = self.open_circuit_v()
         r = p["BAT_R_INTERNAL"]
         # P = V I with V = Voc - R I  ->  R I^2 - Voc I + P = 0

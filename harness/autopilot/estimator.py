@@ -57,6 +57,8 @@ class Estimator:
         self._gps_vel_prev: tuple[int, float, float, float] | None = None
         self._truth0: tuple[float, float, float] | None = None
         self._t_ns = 0
+        self._fast_until_ns = 0
+        """Until then the attitude corrections run 10x faster (convergence after initialisation)."""
         self.acc_d = 0.0
         """Estimated vertical (down) acceleration, m/s²."""
         self._mag_err = 0.0
@@ -115,8 +117,10 @@ class Estimator:
         fx, fy, fz = imu.accel_body_m_s2
         self.accel_body = imu.accel_body_m_s2
         if not self.att_valid:
-            if frame.mag is not None:
+            fn = math.sqrt(fx * fx + fy * fy + fz * fz)
+            if frame.mag is not None and 0.9 * G_M_S2 < fn < 1.1 * G_M_S2:
                 self._init_attitude(fx, fy, fz, frame.mag.field_body_gauss)
+                self._fast_until_ns = frame.t_ns + 2_000_000_000
             self.rates = imu.gyro_body_rad_s
         else:
             self._attitude(frame, fx, fy, fz, dt)
@@ -152,7 +156,7 @@ class Estimator:
             vy = 2 * (x * y - w * z) * rn + (1 - 2 * (x * x + z * z)) * re + 2 * (y * z + w * x) * rd
             vz = 2 * (x * z + w * y) * rn + 2 * (y * z - w * x) * re + (1 - 2 * (x * x + y * y)) * rd
             mx, my, mz = fx / fn, fy / fn, fz / fn
-            k = self._w_acc
+            k = self._w_acc if self._t_ns > self._fast_until_ns else 10.0 * self._w_acc
             ex = k * (my * vz - mz * vy)
             ey = k * (mz * vx - mx * vz)
             ez = k * (mx * vy - my * vx)
@@ -168,7 +172,7 @@ class Estimator:
                 self._mag_err = (err + math.pi) % (2.0 * math.pi) - math.pi
         if self._t_ns - self.last_mag_ns < 500_000_000:
             # world-z correction -k*err, into body: R^T (0, 0, 1)
-            c = -self._w_mag * self._mag_err
+            c = -self._w_mag * self._mag_err * (1.0 if self._t_ns > self._fast_until_ns else 10.0)
             ex += c * 2 * (x * z - w * y)
             ey += c * 2 * (y * z + w * x)
             ez += c * (1 - 2 * (x * x + y * y))
