@@ -19,10 +19,10 @@ M = mavlink2
 
 def test_heartbeat_on_wall_clock_while_sim_paused(gcs: Gcs, idle_rig: Rig) -> None:
     t_before = idle_rig.ap.state().t_ns
-    beats = gcs.collect(3.2, {"HEARTBEAT"})
+    beats = gcs.collect(2.6, {"HEARTBEAT"})
     assert idle_rig.ap.state().t_ns == t_before, "the autopilot must not have stepped"
     times = [t for t, _ in beats]
-    assert len(times) >= 3, f"only {len(times)} heartbeats in 3.2 s of wall time"
+    assert len(times) >= 2, f"only {len(times)} heartbeats in 2.6 s of wall time"
     gaps = [(b - a) / 1e9 for a, b in itertools.pairwise(times)]
     assert max(gaps) <= 1.2
     hb = beats[0][1]
@@ -212,3 +212,47 @@ def test_gcs_port_and_api_port_both_serve_and_set_mode_message(gcs: Gcs) -> None
     finally:
         server.stop()
         qgc.close()
+
+
+def _consecutive_gcs(n: int) -> list[Gcs]:
+    """``n`` ground stations on consecutive UDP ports (like scripts on 14540, 14541, ...)."""
+    import socket
+
+    for _ in range(50):
+        first = Gcs()
+        base = first.port
+        out = [first]
+        try:
+            for i in range(1, n):
+                g = Gcs()
+                g.sock.close()
+                g.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                out.append(g)
+                g.sock.bind(("127.0.0.1", base + i))
+            return out
+        except OSError:
+            for g in out:
+                g.close()
+    raise AssertionError("no consecutive free UDP ports")
+
+
+def test_three_vehicles_each_reach_their_own_script_port() -> None:
+    """Vehicle i sends to api_port_base + i: three scripts on three consecutive ports each see one vehicle."""
+    from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+    from harness.autopilot.mavlink import MavlinkServer, PortsConfig
+
+    scripts = _consecutive_gcs(3)
+    ports = PortsConfig(api_port_base=scripts[0].port, gcs_port=0)
+    servers = [MavlinkServer(Autopilot(AutopilotConfig(vehicle=i)), i, ports).start() for i in range(3)]
+    try:
+        for i, g in enumerate(scripts):
+            seen = {m.get_srcSystem() for _, m in g.collect(1.1, {"HEARTBEAT"})}
+            assert seen == {i + 1}
+            g.send(g.mav.command_long_encode(i + 1, 1, 512, 0, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0))
+            ack = g.recv("COMMAND_ACK", 2.0)
+            assert ack.get_srcSystem() == i + 1 and ack.result == M.MAV_RESULT_ACCEPTED
+    finally:
+        for srv in servers:
+            srv.stop()
+        for g in scripts:
+            g.close()
