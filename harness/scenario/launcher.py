@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.errors import ScenarioError, SimulationError
+from harness.fdm.link import NativeLink
 from harness.record.world import WorldRecorder
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
@@ -348,6 +349,7 @@ class Launcher:
         end_ns = None if plan.duration_s is None else round(plan.duration_s * NS_PER_S)
         missions = sum(1 for m in plan.missions[:n] if m)
         frames = phys.frames()
+        link = NativeLink(channel)
         wall0 = real_monotonic_ns()
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
@@ -363,8 +365,7 @@ class Launcher:
                 if lag > 0:
                     real_sleep(lag / NS_PER_S)
             tick_start = real_monotonic_ns()
-            btas = [p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, _encode(f)) for f in frames]
-            etas = channel.step(btas)
+            etas = link.exchange(t_ns, tick, frames)
             for e in etas:
                 motors[e.vehicle] = e.motors
                 armed, landed_state, _, _ = p.unpack_status(e.status)
@@ -423,9 +424,3 @@ class Launcher:
 def _mission_name(plan: LaunchPlan, i: int) -> str | None:
     m = plan.missions[i] if i < len(plan.missions) else None
     return str(m.script) if m is not None else None
-
-
-def _encode(frame: Any) -> bytes:
-    from harness.fdm.frame import encode_frame
-
-    return encode_frame(frame)
