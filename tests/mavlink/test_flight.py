@@ -83,7 +83,10 @@ def test_reposition_command_int_and_orbit(gcs: Gcs, flying_rig: Rig) -> None:
     int32_min = -(2**31)
     ack = gcs.command_int(M.MAV_CMD_DO_ORBIT, 3, 5.0, 2.0, 0, math.nan, int32_min, int32_min, math.nan)
     assert ack.result == M.MAV_RESULT_ACCEPTED
-    gcs.collect(6.0)
+    t_orbit = flying_rig.ap.state().t_ns
+    deadline = real_monotonic_ns() + 8_000_000_000
+    while real_monotonic_ns() < deadline and flying_rig.ap.state().t_ns - t_orbit < 15_000_000_000:
+        gcs.collect(0.2)  # 15 s of sim time in orbit (at most 8 s of wall time)
     n, e, _ = flying_rig.sim.pos
     assert abs(math.hypot(n - 10.0, e) - 5.0) < 1.5, "orbits 5 m around where it was"
     assert flying_rig.ap.state().mode is FlightMode.ORBIT
