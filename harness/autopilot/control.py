@@ -160,9 +160,12 @@ class PositionControl:
             self.iz += self.ki_z * ez * dt
             lim_i = G_M_S2
             self.iz = -lim_i if self.iz < -lim_i else (lim_i if self.iz > lim_i else self.iz)
-        if th <= room:
-            self.ix += self.ki_xy * ex * dt
-            self.iy += self.ki_xy * ey * dt
+        if th <= room and ah <= self.acc_hor_max:
+            # integrate a bounded error: a large step (offboard velocity) does not wind the integrator up
+            en = math.sqrt(ex * ex + ey * ey)
+            k = self.ki_xy * dt * (1.0 if en <= 0.5 else 0.5 / en)
+            self.ix += k * ex
+            self.iy += k * ey
             ih = math.sqrt(self.ix * self.ix + self.iy * self.iy)
             if ih > 3.0:
                 self.ix *= 3.0 / ih

@@ -51,7 +51,7 @@ PARAM_DEFS: tuple[ParamDef, ...] = (
     _f("ATT_W_MAG", 0.3, 0.0, 1.0, "", "Complementary filter weight of the magnetometer"),
     _f("ATT_W_GYRO_BIAS", 0.1, 0.0, 1.0, "", "Gyro bias learning weight"),
     # Position estimator gains (PX4 has no equivalent for a complementary filter; EKF2_* noise names used)
-    _f("EKF2_GPS_P_NOISE", 0.5, 0.01, 10.0, "m", "GPS position noise (sets the position fusion gain)"),
+    _f("EKF2_GPS_P_NOISE", 2.5, 0.01, 10.0, "m", "GPS position noise (sets the position fusion gain)"),
     _f("EKF2_GPS_V_NOISE", 0.3, 0.01, 5.0, "m/s", "GPS velocity noise (sets the velocity fusion gain)"),
     _f("EKF2_BARO_NOISE", 0.5, 0.01, 15.0, "m", "Barometer noise (sets the height fusion gain)"),
     _f("EKF2_MAG_DECL", 3.0, -180.0, 180.0, "deg", "Magnetic declination at the flying site"),
@@ -82,7 +82,7 @@ PARAM_DEFS: tuple[ParamDef, ...] = (
     _f("MPC_XY_P", 0.95, 0.0, 2.0, "1/s"),
     _f("MPC_Z_P", 1.0, 0.0, 1.5, "1/s"),
     _f("MPC_XY_VEL_P_ACC", 1.8, 1.2, 5.0, "1/s"),
-    _f("MPC_XY_VEL_I_ACC", 0.4, 0.0, 60.0, "1/s2"),
+    _f("MPC_XY_VEL_I_ACC", 1.5, 0.0, 60.0, "1/s2"),
     _f("MPC_XY_VEL_D_ACC", 0.2, 0.1, 2.0),
     _f("MPC_Z_VEL_P_ACC", 4.0, 2.0, 15.0, "1/s"),
     _f("MPC_Z_VEL_I_ACC", 2.0, 0.2, 3.0, "1/s2"),

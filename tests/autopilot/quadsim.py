@@ -4,12 +4,15 @@ autopilot (sign conventions, mode logic) independent of the JSBSim FDM. Acceptan
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from harness.autopilot.mathutil import GeoRef, quat_mul, quat_normalize, rotate, rotate_inv
 from harness.fdm.frame import Baro, Gps, Imu, Mag, SensorFrame, Truth
 
 G = 9.80665
+_DECL = math.radians(3.0)  # as the FDM's world at the default origin
 _GEOM = ((0.707, 0.707, 1.0), (-0.707, -0.707, 1.0), (0.707, -0.707, -1.0), (-0.707, 0.707, -1.0))
 
 
@@ -22,7 +25,7 @@ class QuadSim:
         self.gps_fix = gps_fix
         self.mass = 1.5
         self.arm = 0.25
-        self.t_max = self.mass * G / (4 * 0.5)  # hover at u = 0.5
+        self.t_max = self.mass * G / (4 * 0.52)  # thrust = t_max * u^2 (like the FDM): hover at u = 0.72
         self.inertia = (0.03, 0.03, 0.05)
         self.k_yaw = 0.016
         self.tick_ns = 1_000_000_000 // tick_hz
@@ -44,7 +47,7 @@ class QuadSim:
         for _ in range(self.sub):
             for i in range(4):
                 self.u[i] += (min(max(motors[i], 0.0), 1.0) - self.u[i]) * min(dt / 0.02, 1.0)
-            th = [self.t_max * u for u in self.u]
+            th = [self.t_max * u * u for u in self.u]
             total = sum(th)
             tx = sum(-_GEOM[i][1] * th[i] for i in range(4)) * self.arm
             ty = sum(_GEOM[i][0] * th[i] for i in range(4)) * self.arm
@@ -108,7 +111,7 @@ class QuadSim:
         )
         mag = baro = gps = None
         if self._n % 5 == 0:
-            mb = rotate_inv(self.q, (0.21, 0.0, 0.43))
+            mb = rotate_inv(self.q, (0.21 * math.cos(_DECL), 0.21 * math.sin(_DECL), 0.43))
             mag = Mag((mb[0] + self._nz(0.002), mb[1] + self._nz(0.002), mb[2] + self._nz(0.002)))
         if self._n % 5 == 1:
             baro = Baro(95000.0, 20.0, alt + self._nz(0.1))

@@ -43,7 +43,7 @@ class FlightRig:
         self.frame = plant.frames()[0]
         self.log: list[tuple[float, tuple[float, float, float], tuple[float, float, float]]] = []
         """(t_s, true position NED, true velocity NED) at every tick."""
-        self.on_tick: Callable[[], None] | None = None
+        self.on_tick: Callable[[], object] | None = None
         self.run(2.0)
         t = self.frame.truth
         self.origin = GeoRef(t.lat_deg, t.lon_deg, t.alt_amsl_m)

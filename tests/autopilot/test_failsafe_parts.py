@@ -46,7 +46,7 @@ def test_battery_drains_with_power_and_sags_under_load() -> None:
     params = Params()
     bat = Battery(params)
     full_v = bat.voltage_v
-    bat.update((0.5, 0.5, 0.5, 0.5), True, 0.01)
+    bat.update((0.72, 0.72, 0.72, 0.72), True, 0.01)
     loaded_v, hover_a = bat.voltage_v, bat.current_a
     assert loaded_v < full_v and 5.0 < hover_a < 30.0
     bat.update((1.0, 1.0, 1.0, 1.0), True, 0.01)
@@ -54,8 +54,8 @@ def test_battery_drains_with_power_and_sags_under_load() -> None:
     # ten minutes of hover uses a sensible share of a 5 Ah pack
     before = bat.remaining
     for _ in range(600):
-        bat.update((0.5, 0.5, 0.5, 0.5), True, 1.0)
+        bat.update((0.72, 0.72, 0.72, 0.72), True, 1.0)
     assert 0.3 < before - bat.remaining < 0.9
     idle = Battery(params)
-    idle.update((0.5,) * 4, False, 60.0)
+    idle.update((0.72,) * 4, False, 60.0)
     assert idle.remaining > 0.99
