@@ -29,6 +29,7 @@ from typing import Any
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.world import WorldRecorder
+from harness.scenario.ports import allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep, real_time_ns
@@ -233,8 +234,11 @@ class Launcher:
         status, message = "ok", ""
         wall0 = real_monotonic_ns()
         t_ns = 0
+        ports = allocate(n, plan.api_port_base, plan.gcs_port)
+        self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         with Children(plan.out) as sup:
             try:
+                ports.release()
                 self._start_children(sup, channel.address)
                 expected = 1 + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
                 if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=60.0):
@@ -251,6 +255,7 @@ class Launcher:
                 channel.close("end of run")
                 world.close()
         wall_s = (real_monotonic_ns() - wall0) / NS_PER_S
+        t_ns = phys.t_ns
         exits = {e.vehicle: e for e in channel.mission_exits}
         for s in summaries:
             if s.mission is not None:
@@ -268,6 +273,8 @@ class Launcher:
             result,
             {
                 "seed": plan.seed,
+                "api_port_base": self.api_port_base,
+                "gcs_port": self.gcs_port,
                 "tick_hz": plan.tick_hz,
                 "physics_hz": plan.physics_hz,
                 "phase_every": plan.phase_every,
@@ -290,9 +297,9 @@ class Launcher:
                 "--vehicles",
                 vehicles,
                 "--api-port-base",
-                str(plan.api_port_base),
+                str(self.api_port_base),
                 "--gcs-port",
-                str(plan.gcs_port),
+                str(self.gcs_port),
                 "--run-dir",
                 str(plan.out),
             ],
@@ -320,7 +327,7 @@ class Launcher:
             if m is None:
                 continue
             menv = dict(
-                env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(i + 1), HARNESS_MAVLINK_PORT=str(plan.api_port_base + i)
+                env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(i + 1), HARNESS_MAVLINK_PORT=str(self.api_port_base + i)
             )
             sup.start(
                 f"mission-{i}",
@@ -368,10 +375,7 @@ class Launcher:
             etas = link.exchange(t_ns, tick, frames)
             for e in etas:
                 motors[e.vehicle] = e.motors
-                armed, landed_state, _, _ = p.unpack_status(e.status)
-                s = summaries[e.vehicle]
-                s.armed = armed
-                s.landed = landed_state in (0, 1)
+                summaries[e.vehicle].armed = p.unpack_status(e.status)[0]
             if tick % record_every == 0:
                 now = real_monotonic_ns()
                 for f in frames:
@@ -397,6 +401,7 @@ class Launcher:
                 if alt > s.max_altitude_m:
                     s.max_altitude_m = alt
                 s.final_position_ned_m = f.truth.pos_ned_m
+                s.landed = f.truth.on_ground
                 if f.truth.crashed and not s.crashed:
                     s.crashed = True
                     world.event(t_ns, "crash", {"vehicle": f.vehicle})
