@@ -109,9 +109,19 @@ def _plan_from_args(a: argparse.Namespace) -> LaunchPlan:
     )
 
 
+def _terminate_as_interrupt() -> None:
+    """SIGTERM (a CI timeout, a supervisor) ends a run the way Ctrl-C does: children stopped, summary written."""
+
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+
+
 def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
     from harness.scenario.launcher import Launcher
 
+    _terminate_as_interrupt()
     plan = _plan_from_args(a)
     result = Launcher(plan).run()
     if sys.stderr.isatty():

@@ -1,0 +1,102 @@
+"""`harness run` end to end: real processes, real MAVSDK scripts, recordings, Ctrl-C."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+
+from harness.record.world import read_topics
+
+pytestmark = pytest.mark.sim
+ROOT = Path(__file__).resolve().parents[2]
+TAKEOFF_AND_LAND = ROOT / "missions" / "takeoff_and_land.py"
+
+
+def harness(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "harness.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+
+
+def pids_with_run_dir(run_dir: Path) -> list[int]:
+    """Every live process started for this run (they all carry HARNESS_RUN_DIR in their environment)."""
+    found = []
+    needle = f"HARNESS_RUN_DIR={run_dir}".encode()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            env = Path(f"/proc/{entry}/environ").read_bytes()
+        except OSError:
+            continue
+        if needle in env.split(b"\0"):
+            found.append(int(entry))
+    return found
+
+
+def tlog_messages(path: Path) -> list[str]:
+    log = mavutil.mavlink_connection(str(path))
+    types = []
+    while (m := log.recv_match()) is not None:
+        types.append(m.get_type())
+    return types
+
+
+def test_two_vehicles_fly_the_same_unmodified_script(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc = harness("run", "--vehicles", "2", "--mission", str(TAKEOFF_AND_LAND), "--out", str(out), "--duration", "200")
+    stdout, stderr = proc.communicate(timeout=240)
+    assert proc.returncode == 0, stdout + stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "ok" and summary["sim_time_s"] > 30
+    for v in summary["vehicles"]:
+        assert v["mission_exit_code"] == 0
+        assert 9.7 <= v["max_altitude_m"] <= 10.5  # set_takeoff_altitude(10) from the script
+        assert v["landed"] is True and v["crashed"] is False
+    # each script reached its own vehicle: they started 5 m apart and each landed where it started
+    finals = [v["final_position_ned_m"] for v in summary["vehicles"]]
+    assert abs(finals[1][1] - finals[0][1] - 5.0) < 1.5
+    # the recordings open: tlog in pymavlink (what MAVExplorer uses), mcap with a pose stream >= 50 Hz
+    for i in range(2):
+        types = tlog_messages(out / f"vehicle-{i}.tlog")
+        assert "HEARTBEAT" in types and "GLOBAL_POSITION_INT" in types and "COMMAND_LONG" in types
+    topics = read_topics(out / "world.mcap")
+    poses = topics["/vehicle/0/pose"]
+    assert len(poses) >= 50 * summary["sim_time_s"] * 0.95
+    assert not pids_with_run_dir(out)
+
+
+def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc = harness("run", "--vehicles", "2", "--mission", str(TAKEOFF_AND_LAND), "--out", str(out), "--speed", "2")
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not (out / "vehicle-1.tlog").exists():
+        time.sleep(0.2)
+    time.sleep(3.0)
+    children = pids_with_run_dir(out)
+    assert len(children) >= 3  # autopilot process and two missions (plus mavsdk_server)
+    start = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=10)
+    assert time.monotonic() - start < 5.0
+    assert not pids_with_run_dir(out), "no orphans"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["sim_time_s"] > 0
+    assert proc.returncode == 130
+    assert "HEARTBEAT" in tlog_messages(out / "vehicle-0.tlog")
+    assert read_topics(out / "world.mcap")["/vehicle/1/pose"]
+
+
+def test_bad_mission_path_is_one_line(tmp_path: Path) -> None:
+    proc = harness("run", "--vehicles", "1", "--mission", str(tmp_path / "nope.py"), "--out", str(tmp_path / "r"))
+    _, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 2
+    assert stderr.strip().count("\n") == 0 and "nope.py" in stderr and "does not exist" in stderr
