@@ -170,20 +170,23 @@ class MavlinkServer:
         while not self._stop.is_set():
             try:
                 ready, _, _ = select.select(socks, [], [], self._wait_s())
-            except (OSError, ValueError):
+            except (OSError, ValueError) as e:  # sockets closed under us (stop) or a transient error
                 if self._stop.is_set():
                     return
-                raise
-            now = self._wall_ns()
-            for i, link in enumerate(self.links):
-                if link.sock in ready:
-                    for data, addr in link.receive(512):
-                        self._on_datagram(i, data, addr, now)
-            try:
-                self._tick(self._wall_ns())
-            except Exception as e:
                 self._count("handler_errors")
-                self._log_once(e, "periodic work")
+                self._log_once(e, "select")
+                self._stop.wait(0.01)
+                continue
+            try:
+                now = self._wall_ns()
+                for i, link in enumerate(self.links):
+                    if link.sock in ready:
+                        for data, addr in link.receive(512):
+                            self._on_datagram(i, data, addr, now)
+                self._tick(self._wall_ns())
+            except Exception as e:  # never let one bad iteration end the thread
+                self._count("handler_errors")
+                self._log_once(e, "server loop")
 
     def _wait_s(self) -> float:
         """Until the next wall-clock stream is due; at most 10 ms while sim time moves (sim-rate streams),
