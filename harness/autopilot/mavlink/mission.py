@@ -127,6 +127,8 @@ class MissionService:
         self.retry_ns = retry_ns
         self.max_retries = max_retries
         self._upload: _Upload | None = None
+        self._last_done: tuple[int, tuple[str, int], int, int, int] | None = None
+        """(link, address, kind, count, ack code) of the last finished upload, to answer a repeated last item."""
         self._downloads: dict[tuple[int, tuple[str, int], int], tuple[MissionItem, ...]] = {}
         self.refusals: list[CommandResult] = []
         """Reasons of refused transfers since the last call of ``pop_refusals`` (sent as STATUSTEXT)."""
@@ -179,8 +181,13 @@ class MissionService:
 
     def _item(self, m: MAVLinkMessage, origin: Origin, now_ns: int) -> list[Out]:
         up = self._upload
-        if up is None or up.origin.addr != origin.addr or up.origin.link != origin.link or m.mission_type != up.kind:
-            return [self._ack(origin, mavlink2.MAV_MISSION_OPERATION_CANCELLED, m.mission_type)] if up is None else []
+        if up is None:
+            last = self._last_done
+            if last is not None and last[:3] == (origin.link, origin.addr, m.mission_type) and m.seq == last[3] - 1:
+                return [self._ack(origin, last[4], m.mission_type)]  # our ACK was lost: the last item again
+            return [self._ack(origin, mavlink2.MAV_MISSION_OPERATION_CANCELLED, m.mission_type)]
+        if up.origin.addr != origin.addr or up.origin.link != origin.link or m.mission_type != up.kind:
+            return []
         expected = len(up.items)
         if m.seq != expected:
             return [self._request(up, now_ns)]  # duplicate or out of order: ask again for the one we need
@@ -194,7 +201,9 @@ class MissionService:
         if len(up.items) < up.count:
             return [self._request(up, now_ns)]
         self._upload = None
-        return [self._finish(origin, up.kind, up.items)]
+        ack = self._finish(origin, up.kind, up.items)
+        self._last_done = (origin.link, origin.addr, up.kind, up.count, ack.msg.type)
+        return [ack]
 
     def _finish(self, origin: Origin, kind: int, items: list[MissionItem]) -> Out:
         result = (
