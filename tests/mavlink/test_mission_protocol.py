@@ -7,6 +7,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import MissionKind
+from harness.simclock.clock import real_monotonic_ns
 from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
@@ -114,26 +115,66 @@ def test_refused_mission_gets_an_error_ack_and_reason(gcs: Gcs, idle_rig: Rig) -
     assert gcs.recv("MISSION_ACK").type == M.MAV_MISSION_INVALID_SEQUENCE
 
 
-def test_flown_mission_reports_every_item_reached(gcs: Gcs, flying_rig: Rig) -> None:
-    items = _items(0)
+def _ten_items() -> list[tuple[int, int, float, float, float, float, int, int, float]]:
+    nan = float("nan")
+    d = 4e-5  # about 4.4 m north, 3 m east
+
+    def wp(n: float, e: float, alt: float = 5.0, hold_s: float = 0.0) -> tuple:
+        return (
+            REL,
+            M.MAV_CMD_NAV_WAYPOINT,
+            hold_s,
+            1.0,
+            0,
+            nan,
+            int((LAT0 + n * d) * 1e7),
+            int((LON0 + e * d) * 1e7),
+            alt,
+        )
+
+    return [
+        (REL, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, int(LAT0 * 1e7), int(LON0 * 1e7), 5.0),
+        wp(1, 0),
+        (M.MAV_FRAME_MISSION, M.MAV_CMD_DO_CHANGE_SPEED, 1, 4.0, -1, 0, 0, 0, 0.0),
+        wp(1, 1),
+        wp(0, 1, 6.0),
+        (M.MAV_FRAME_MISSION, 1000, 0, 0, 0, 0, 0, 0, 0.0),  # gimbal: accepted and stepped over
+        wp(0, 0, 6.0, hold_s=1.0),
+        (M.MAV_FRAME_MISSION, 2000, 0, 0, 1, 0, 0, 0, 0.0),  # camera: accepted and stepped over
+        wp(1, 0),
+        (REL, M.MAV_CMD_NAV_LAND, 0, 0, 0, nan, int((LAT0 + d) * 1e7), int(LON0 * 1e7), 0.0),
+    ]
+
+
+def test_ground_station_connect_sequence_then_a_ten_item_mission(gcs: Gcs, flying_rig: Rig) -> None:
+    """What QGroundControl does on connect (version, all parameters, mission download), then a 10-item
+    mission flown in AUTO.MISSION: every item reached, mission complete, landed, disarmed."""
+    assert gcs.command(512, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION).result == M.MAV_RESULT_ACCEPTED
+    assert gcs.recv("AUTOPILOT_VERSION").capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    gcs.send(gcs.mav.param_request_list_encode(1, 1))
+    params = {m.param_index: m for _, m in gcs.collect(1.0, {"PARAM_VALUE"})}
+    assert sorted(params) == list(range(len(flying_rig.ap.params)))
+    assert download(gcs, 0) == [] and download(gcs, 1) == [] and download(gcs, 2) == []
+    items = _ten_items()
     assert upload(gcs, 0, items).type == M.MAV_MISSION_ACCEPTED  # type: ignore[attr-defined]
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0).result == M.MAV_RESULT_ACCEPTED
     assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 4, 4).result == M.MAV_RESULT_ACCEPTED  # AUTO.MISSION
-    reached: set[int] = set()
-    complete = None
-    msgs = gcs.collect(0.1)
-    for _ in range(300):  # up to ~30 s of wall time (the sim runs at up to 4x)
-        for _, m in msgs:
-            if m.get_type() == "MISSION_ITEM_REACHED":
-                reached.add(m.seq)
-            if m.get_type() == "MISSION_CURRENT" and m.mission_state == M.MISSION_STATE_COMPLETE:
-                complete = m
-        if reached == set(range(len(items))) and complete is not None:
-            break
-        msgs = gcs.collect(0.1, {"MISSION_ITEM_REACHED", "MISSION_CURRENT"})
-    assert reached == set(range(len(items)))
-    assert complete is not None
-    ext = gcs.recv("EXTENDED_SYS_STATE", 20.0, lambda m: m.landed_state == M.MAV_LANDED_STATE_ON_GROUND)
-    assert ext is not None
+    reached: list[int] = []
+    complete = landed = disarmed = False
+    deadline = real_monotonic_ns() + 40_000_000_000
+    kinds = {"MISSION_ITEM_REACHED", "MISSION_CURRENT", "EXTENDED_SYS_STATE", "HEARTBEAT"}
+    while real_monotonic_ns() < deadline and not (complete and landed and disarmed):
+        for _, m in gcs.collect(0.1, kinds):
+            kind = m.get_type()
+            if kind == "MISSION_ITEM_REACHED" and m.seq not in reached:
+                reached.append(m.seq)
+            elif kind == "MISSION_CURRENT" and m.mission_state == M.MISSION_STATE_COMPLETE:
+                complete = True
+            elif kind == "EXTENDED_SYS_STATE" and complete:
+                landed = m.landed_state == M.MAV_LANDED_STATE_ON_GROUND
+            elif kind == "HEARTBEAT" and landed:
+                disarmed = not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+    assert reached == list(range(len(items))), "every item reached, in order"
+    assert complete and landed and disarmed
     n, e, _ = flying_rig.sim.pos
-    assert abs(n - 5e-5 * 111_195) < 2.0 and abs(e - 7e-5 * 111_195 * 0.6774) < 2.0
+    assert abs(n - 4e-5 * 111_195) < 1.5 and abs(e) < 1.5, "landed at the last waypoint"
