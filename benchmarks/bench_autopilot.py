@@ -18,29 +18,33 @@ import subprocess
 import sys
 import time
 
-from harness.fdm.physics import Physics, PhysicsConfig
-
 from harness.autopilot.api import FlightMode
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.fdm.frame import encode_frame
+from harness.fdm.physics import Physics, PhysicsConfig
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
 
 TICK_HZ = 250
 SUBSTEP_HZ = 1000
+"""The shipped defaults (scenario launcher); ``--physics-hz`` / ``--tick-hz`` change them for a run."""
 ALT_M = 5.0
 
 
+RATES = {"physics_hz": float(SUBSTEP_HZ), "tick_hz": float(TICK_HZ)}
+
+
 def _physics(n: int) -> Physics:
-    return Physics(PhysicsConfig(n_vehicles=n, seed=0, substep_hz=SUBSTEP_HZ, tick_hz=TICK_HZ))
+    return Physics(PhysicsConfig(n_vehicles=n, seed=0, substep_hz=RATES["physics_hz"], tick_hz=RATES["tick_hz"]))
 
 
 def in_process(n: int, seconds: float) -> dict[str, float]:
+    tick_hz = round(RATES["tick_hz"])
     phys = _physics(n)
     aps = [Autopilot(AutopilotConfig(vehicle=v)) for v in range(n)]
     frames = phys.frames()
     # get everyone up (not measured)
-    for ticks in range(1, TICK_HZ * 25):
+    for ticks in range(1, tick_hz * 25):
         frames = phys.step([ap.step(f) for ap, f in zip(aps, frames, strict=True)])
         if ticks % 25 == 0:
             for ap in aps:
@@ -48,10 +52,10 @@ def in_process(n: int, seconds: float) -> dict[str, float]:
                 if not s.armed and ap.arming_check() == "":
                     ap.arm()
                     ap.takeoff(ALT_M)
-        if ticks > TICK_HZ * 3 and all(ap.state().mode == FlightMode.HOLD and ap.state().armed for ap in aps):
+        if ticks > tick_hz * 3 and all(ap.state().mode == FlightMode.HOLD and ap.state().armed for ap in aps):
             break
     assert all(ap.state().armed for ap in aps), [ap.arming_check() for ap in aps]
-    n_ticks = round(seconds * TICK_HZ)
+    n_ticks = round(seconds * tick_hz)
     ap_ns = 0
     perf = time.perf_counter_ns
     t0 = perf()
@@ -73,7 +77,8 @@ def in_process(n: int, seconds: float) -> dict[str, float]:
 
 def through_channel(n: int, seconds: float, per_vehicle_process: bool) -> dict[str, float]:
     """Root channel inside this (physics) process, autopilot hosts as separate processes over TCP."""
-    ch = Channel(ChannelConfig(address="tcp://127.0.0.1:0", tick_hz=TICK_HZ, stall_timeout_s=30))
+    tick_hz = round(RATES["tick_hz"])
+    ch = Channel(ChannelConfig(address="tcp://127.0.0.1:0", tick_hz=tick_hz, stall_timeout_s=30))
     ch.attach_physics()
     groups = [[v] for v in range(n)] if per_vehicle_process else [list(range(n))]
     procs = [
@@ -98,8 +103,8 @@ def through_channel(n: int, seconds: float, per_vehicle_process: bool) -> dict[s
             raise RuntimeError("autopilot hosts did not join within 60 s")
         phys = _physics(n)
         frames = phys.frames()
-        warm = TICK_HZ * 20
-        total = warm + round(seconds * TICK_HZ)
+        warm = tick_hz * 20
+        total = warm + round(seconds * tick_hz)
         t0 = 0
         for k in range(total):
             if k == warm:
@@ -128,9 +133,12 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0, help="measured sim seconds of hover")
     ap.add_argument("--vehicles", type=int, nargs="+", default=[1, 10])
     ap.add_argument("--no-channel", action="store_true")
+    ap.add_argument("--physics-hz", type=float, default=SUBSTEP_HZ)
+    ap.add_argument("--tick-hz", type=int, default=TICK_HZ)
     args = ap.parse_args()
+    RATES["physics_hz"], RATES["tick_hz"] = args.physics_hz, float(args.tick_hz)
     print(
-        f"rates: physics sub-step {SUBSTEP_HZ} Hz, control tick {TICK_HZ} Hz; hover at {ALT_M} m, "
+        f"rates: physics sub-step {args.physics_hz:g} Hz, control tick {args.tick_hz} Hz; hover at {ALT_M} m, "
         f"{args.seconds:g} s of sim time measured; machine shared (noisy)"
     )
     for n in args.vehicles:

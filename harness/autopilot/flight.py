@@ -199,9 +199,20 @@ class FlightCore:
         self.collective = thrust
         m, self._sat_pos, self._sat_neg = mix_quad_x(torque[0], torque[1], torque[2], thrust, self._idle)
         f = self._fac
-        if f > 0.0:
+        if f == 1.0:
+            sq = math.sqrt
+            m = (sq(m[0]), sq(m[1]), sq(m[2]), sq(m[3]))
+        elif f > 0.0:
+            # invert thrust = f u^2 + (1 - f) u
             a = 1.0 - f
-            m = tuple((-a + math.sqrt(a * a + 4.0 * f * u)) / (2.0 * f) for u in m)  # type: ignore[assignment]
+            a2, f4, f2 = a * a, 4.0 * f, 2.0 * f
+            sq = math.sqrt
+            m = (
+                (sq(a2 + f4 * m[0]) - a) / f2,
+                (sq(a2 + f4 * m[1]) - a) / f2,
+                (sq(a2 + f4 * m[2]) - a) / f2,
+                (sq(a2 + f4 * m[3]) - a) / f2,
+            )
         return m
 
     def _land_detector(self, dt: float) -> None:
