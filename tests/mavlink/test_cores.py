@@ -173,3 +173,24 @@ def test_mavftp_requests_get_a_nak_at_once() -> None:
     assert out.msg.payload[12] == ERR_FILE_NOT_FOUND and out.to == origin and out.msg.target_system == 255
     reply = struct.pack("<HBBBBBBI", 42, 0, OP_NAK, 1, 4, 0, 0, 0)
     assert nak(MAV, MAV.file_transfer_protocol_encode(0, 1, 1, list(reply) + [0] * (251 - len(reply))), origin) == []
+
+
+def test_global_setpoint_becomes_local_ned() -> None:
+    from harness.autopilot.api import GeoPoint
+    from harness.autopilot.mavlink.offboard import global_target
+
+    lat0, lon0 = 47.397742, 8.545594
+    state = VehicleState(
+        pos_ned_m=(2.0, 3.0, -10.0), lat_deg=lat0, lon_deg=lon0, alt_amsl_m=498.0, home=GeoPoint(lat0, lon0, 488.0)
+    )
+    north_10m = math.degrees(10.0 / 6_371_000.0)
+    pos_only = 0b0000_1101_1111_1000
+    msg = MAV.set_position_target_global_int_encode(
+        0, 1, 1, 6, pos_only, round((lat0 + north_10m) * 1e7), round(lon0 * 1e7), 15.0, 0, 0, 0, 0, 0, 0, 0, 0
+    )
+    sp = global_target(msg, state)
+    assert not isinstance(sp, str) and sp.position_m is not None and sp.frame is OffboardFrame.LOCAL_NED
+    n, e, d = sp.position_m
+    assert abs(n - 12.0) < 0.02 and abs(e - 3.0) < 0.02 and abs(d - (-15.0)) < 1e-6  # 15 m above home
+    bad = MAV.set_position_target_global_int_encode(0, 1, 1, 1, pos_only, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+    assert "frame" in str(global_target(bad, state))

@@ -1,4 +1,5 @@
-"""Offboard setpoints: SET_POSITION_TARGET_LOCAL_NED and SET_ATTITUDE_TARGET to the autopilot API.
+"""Offboard setpoints: SET_POSITION_TARGET_LOCAL_NED, SET_POSITION_TARGET_GLOBAL_INT and SET_ATTITUDE_TARGET
+to the autopilot API.
 
 ``type_mask`` bits say which fields to *ignore*; an ignored vector or yaw becomes ``None`` (unset). A vector
 must be used or ignored as a whole (x, y and z together). Frames: LOCAL_NED (1)
@@ -13,7 +14,14 @@ import math
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AttitudeTarget, AutopilotApi, CommandResult, OffboardFrame, OffboardSetpoint
+from harness.autopilot.api import (
+    AttitudeTarget,
+    AutopilotApi,
+    CommandResult,
+    OffboardFrame,
+    OffboardSetpoint,
+    VehicleState,
+)
 from harness.autopilot.mavlink.messages import MAVLinkMessage
 
 _POS = (
@@ -91,6 +99,56 @@ def position_target(m: MAVLinkMessage) -> OffboardSetpoint | str:
     return sp
 
 
+_EARTH_R_M = 6_371_000.0
+_GLOBAL_FRAMES = {0: False, 5: False, 3: True, 6: True}
+"""SET_POSITION_TARGET_GLOBAL_INT frames -> altitude relative to home?"""
+
+
+def global_target(m: MAVLinkMessage, state: VehicleState) -> OffboardSetpoint | str:
+    """SET_POSITION_TARGET_GLOBAL_INT (MAVSDK ``set_position_global``) as a LOCAL_NED setpoint: the target
+    is placed relative to the current estimate (flat earth around it: fine for offboard distances)."""
+    rel = _GLOBAL_FRAMES.get(m.coordinate_frame)
+    if rel is None:
+        return f"global setpoint frame {m.coordinate_frame} not supported (use GLOBAL_INT or GLOBAL_RELATIVE_ALT_INT)"
+    mask = m.type_mask
+    if mask & _FORCE:
+        return "offboard force setpoints are not supported"
+    try:
+        pos = _vector(mask, _POS, (m.lat_int * 1e-7, m.lon_int * 1e-7, m.alt))
+        vel = _vector(mask, _VEL, (m.vx, m.vy, m.vz))
+        acc = _vector(mask, _ACC, (m.afx, m.afy, m.afz))
+    except _Partial:
+        return "offboard setpoint ignores part of a vector: use or ignore x, y and z together"
+    local: tuple[float, float, float] | None = None
+    if pos is not None:
+        lat, lon, alt = pos
+        if not (math.isfinite(alt) and abs(lat) <= 90.0 and abs(lon) <= 180.0):
+            return "global setpoint with invalid coordinates"
+        if rel:
+            if state.home is None:
+                return "relative-altitude setpoint without a home position"
+            alt += state.home.alt_amsl_m
+        n0, e0, d0 = state.pos_ned_m
+        dn = math.radians(lat - state.lat_deg) * _EARTH_R_M
+        de = math.radians(lon - state.lon_deg) * _EARTH_R_M * math.cos(math.radians(state.lat_deg))
+        local = (n0 + dn, e0 + de, d0 - (alt - state.alt_amsl_m))
+    if local is None and vel is None and acc is None:
+        return "offboard setpoint ignores position, velocity and acceleration"
+    sp = OffboardSetpoint(
+        position_m=local,
+        velocity_m_s=vel,
+        accel_m_s2=acc,
+        yaw_rad=None if mask & _YAW else m.yaw,
+        yaw_rate_rad_s=None if mask & _YAW_RATE else m.yaw_rate,
+        frame=OffboardFrame.LOCAL_NED,
+    )
+    used = [v for vec in (local, vel, acc) if vec is not None for v in vec]
+    used += [v for v in (sp.yaw_rad, sp.yaw_rate_rad_s) if v is not None]
+    if not all(math.isfinite(v) for v in used):
+        return "offboard setpoint with NaN or infinite values"
+    return sp
+
+
 def attitude_target(m: MAVLinkMessage) -> AttitudeTarget | str:
     mask = m.type_mask
     quat = None if mask & _ATT_ATTITUDE_IGNORE else (m.q[0], m.q[1], m.q[2], m.q[3])
@@ -109,8 +167,16 @@ def attitude_target(m: MAVLinkMessage) -> AttitudeTarget | str:
 
 def handle_setpoint(api: AutopilotApi, m: MAVLinkMessage) -> CommandResult:
     """Forward one setpoint message; a refusal carries the reason (counted and logged, never ACKed)."""
-    if m.get_msgId() == mavlink2.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
-        sp = position_target(m)
+    mid = m.get_msgId()
+    if mid in (
+        mavlink2.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
+        mavlink2.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
+    ):
+        sp = (
+            position_target(m)
+            if mid == mavlink2.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
+            else global_target(m, api.state())
+        )
         return CommandResult.denied(sp) if isinstance(sp, str) else api.set_offboard_setpoint(sp)
     att = attitude_target(m)
     return CommandResult.denied(att) if isinstance(att, str) else api.set_attitude_target(att)
