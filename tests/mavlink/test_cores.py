@@ -194,3 +194,28 @@ def test_global_setpoint_becomes_local_ned() -> None:
     assert abs(n - 12.0) < 0.02 and abs(e - 3.0) < 0.02 and abs(d - (-15.0)) < 1e-6  # 15 m above home
     bad = MAV.set_position_target_global_int_encode(0, 1, 1, 1, pos_only, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
     assert "frame" in str(global_target(bad, state))
+
+
+def test_data_link_loss_acts_once_after_the_gcs_falls_silent() -> None:
+    import numpy as np
+
+    from harness.autopilot.mavlink.datalink import DataLinkMonitor
+    from tests.autopilot.quadsim import QuadSim, fly
+
+    ap = Autopilot()
+    sim = QuadSim(np.random.default_rng(2))
+    fly(ap, sim, 3.0)
+    assert ap.arm().ok and ap.takeoff(3.0).ok
+    fly(ap, sim, 6.0)
+    mon = DataLinkMonitor(ap)
+    s = ap.state()
+    assert s.in_air
+    assert mon.check(s, 100 * 10**9) == "", "never heard a GCS: nothing lost"
+    mon.heard_gcs(0)
+    assert mon.check(s, 11 * 10**9) == "", "NAV_DLL_ACT 0: disabled"
+    assert ap.set_param("NAV_DLL_ACT", 2).ok
+    assert mon.check(s, 9 * 10**9) == ""
+    assert mon.check(s, 11 * 10**9) == "Data link lost for 11 s: returning"
+    assert mon.check(s, 12 * 10**9) == "", "once"
+    fly(ap, sim, 0.1)
+    assert ap.state().mode is FlightMode.RTL

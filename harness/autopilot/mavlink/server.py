@@ -24,6 +24,7 @@ from harness.autopilot.api import AutopilotApi, FlightMode, GeoPoint, Result, Se
 from harness.autopilot.mavlink import ftp
 from harness.autopilot.mavlink.codec import Codec, FrameStatus, SigningConfig
 from harness.autopilot.mavlink.commands import CommandIn, CommandService
+from harness.autopilot.mavlink.datalink import DataLinkMonitor
 from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule, heartbeat_message
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, statustext
 from harness.autopilot.mavlink.mission import MissionService, ProgressTracker
@@ -119,6 +120,7 @@ class MavlinkServer:
             autopilot, self._request_message, self.streams.set_interval, getattr(autopilot, "inject_failure", None)
         )
         self._progress = ProgressTracker()
+        self.datalink = DataLinkMonitor(autopilot)
         self._counters = MavlinkCounters()
         self._counter_lock = threading.Lock()
         self._texts_sent: dict[str, int] = {}
@@ -252,6 +254,8 @@ class MavlinkServer:
     def _dispatch(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
         mid = m.get_msgId()
         if mid == _M.MAVLINK_MSG_ID_HEARTBEAT:
+            if m.type == _M.MAV_TYPE_GCS:
+                self.datalink.heard_gcs(now)
             return
         if not self._for_us(m):
             self._count("not_for_us")
@@ -347,6 +351,9 @@ class MavlinkServer:
         for reached in self.api.pop_mission_reached():
             outs.append(Out(mav.mission_item_reached_encode(reached.seq & 0xFFFF)))
         self._send_all(outs, now)
+        lost = self.datalink.check(state, now)
+        if lost:
+            self._say(Severity.CRITICAL, lost, now)
         for text in self.api.pop_status_texts():
             self._say(text.severity, text.text, now)
         self._send_all(self.params.tick(), now)
