@@ -219,3 +219,23 @@ def test_data_link_loss_acts_once_after_the_gcs_falls_silent() -> None:
     assert mon.check(s, 12 * 10**9) == "", "once"
     fly(ap, sim, 0.1)
     assert ap.state().mode is FlightMode.RTL
+
+
+def test_parameters_survive_a_vehicle_restart_in_the_same_run_dir(tmp_path: object) -> None:
+    from pathlib import Path
+
+    from harness.autopilot.mavlink.param_store import persist_params, store_path
+    from harness.autopilot.params import Params
+
+    run_dir = Path(str(tmp_path))
+    first = Params()
+    assert persist_params(first, run_dir, 3) == []
+    assert first.set("MIS_TAKEOFF_ALT", 12.5).ok and first.set("NAV_DLL_ACT", 2).ok
+    assert not first.set("MIS_TAKEOFF_ALT", 1e9).ok  # refused: not saved
+    again = Params()  # the vehicle restarts
+    assert persist_params(again, run_dir, 3) == []
+    assert again["MIS_TAKEOFF_ALT"] == 12.5 and again.get("NAV_DLL_ACT") == 2
+    assert Params()["MIS_TAKEOFF_ALT"] != 12.5
+    store_path(run_dir, 4).parent.mkdir(parents=True, exist_ok=True)
+    store_path(run_dir, 4).write_text("{not json")
+    assert persist_params(Params(), run_dir, 4) == []  # a corrupt file is ignored, not fatal

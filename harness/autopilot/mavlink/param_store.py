@@ -1,0 +1,72 @@
+"""Parameter storage per vehicle that survives a restart of the vehicle within a run directory.
+
+Every change (PARAM_SET from a ground station or ``set_param`` in-process) rewrites
+``<run_dir>/params/vehicle-<i>.json`` with the values that differ from their defaults (atomically: a
+temporary file then ``os.replace``). A vehicle started again in the same run directory gets them back::
+
+    refused = persist_params(autopilot.params, run_dir, vehicle)   # restore, then keep saving
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+from pathlib import Path
+
+from harness.autopilot.params import Params
+
+log = logging.getLogger(__name__)
+
+
+def store_path(run_dir: Path, vehicle: int) -> Path:
+    return run_dir / "params" / f"vehicle-{vehicle}.json"
+
+
+class ParamStore:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._lock = threading.Lock()
+
+    def load(self) -> dict[str, float]:
+        """The saved values ({} when nothing was saved; a corrupt file is logged and ignored)."""
+        try:
+            data = json.loads(self.path.read_text())
+        except FileNotFoundError:
+            return {}
+        except (OSError, ValueError) as e:
+            log.warning("ignoring unreadable parameter file %s: %s", self.path, e)
+            return {}
+        if not isinstance(data, dict):
+            log.warning("ignoring parameter file %s: not a JSON object", self.path)
+            return {}
+        return {str(k): float(v) for k, v in data.items() if isinstance(v, int | float)}
+
+    def save(self, params: Params) -> None:
+        defaults = {d.name: d.default for d in params.defs}
+        changed = {k: v for k, v in params.snapshot().items() if v != defaults[k]}
+        with self._lock:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(changed, indent=1, sort_keys=True))
+            os.replace(tmp, self.path)
+
+
+def persist_params(params: Params, run_dir: Path, vehicle: int) -> list[str]:
+    """Restore the vehicle's saved parameters into ``params`` and save every later change.
+
+    Returns the reasons of saved values that were refused (e.g. a range that changed since)."""
+    store = ParamStore(store_path(run_dir, vehicle))
+    refused = params.update(store.load())
+    for reason in refused:
+        log.warning("vehicle %d: saved parameter not restored: %s", vehicle, reason)
+
+    def on_change(_name: str, _value: float) -> None:
+        try:
+            store.save(params)
+        except OSError as e:
+            log.warning("vehicle %d: cannot save parameters to %s: %s", vehicle, store.path, e)
+
+    params.subscribe(on_change)
+    return refused
