@@ -3,6 +3,8 @@ retries on the wall clock, clear, set current; then a flown mission reports ever
 
 from __future__ import annotations
 
+import functools
+
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -60,13 +62,17 @@ def upload(gcs: Gcs, kind: int, items: list, drop_first_request: bool = False) -
             return gcs.recv("MISSION_ACK", 3.0, lambda a: a.mission_type == kind)
 
 
+def _is_seq(seq: int, m: object) -> bool:
+    return bool(m.seq == seq)  # type: ignore[attr-defined]
+
+
 def download(gcs: Gcs, kind: int) -> list:
     gcs.send(gcs.mav.mission_request_list_encode(1, 1, kind))
     count = gcs.recv("MISSION_COUNT", 3.0, lambda m: m.mission_type == kind).count
     got = []
     for seq in range(count):
         gcs.send(gcs.mav.mission_request_int_encode(1, 1, seq, kind))
-        got.append(gcs.recv("MISSION_ITEM_INT", 3.0, lambda m, s=seq: m.seq == s))
+        got.append(gcs.recv("MISSION_ITEM_INT", 3.0, functools.partial(_is_seq, seq)))
     gcs.send(gcs.mav.mission_ack_encode(1, 1, M.MAV_MISSION_ACCEPTED, kind))
     return got
 
