@@ -54,10 +54,13 @@ class Estimator:
         self._hist: list[tuple[int, float, float, float, float, float, float]] = []
         self._hist_i = 0
         self._alin = [0.0, 0.0, 0.0]
+        self._alin_tau = 1.0
+        """Low-pass time constant of the GPS-measured linear acceleration (GPS velocity noise, differentiated)."""
         self._gps_vel_prev: tuple[int, float, float, float] | None = None
         self._truth0: tuple[float, float, float] | None = None
         self._t_ns = 0
         self._fast_until_ns = 0
+        self._settled = False
         """Until then the attitude corrections run 10x faster (convergence after initialisation)."""
         self.acc_d = 0.0
         """Estimated vertical (down) acceleration, m/s²."""
@@ -124,6 +127,10 @@ class Estimator:
             self.rates = imu.gyro_body_rad_s
         else:
             self._attitude(frame, fx, fy, fz, dt)
+            if not self._settled and frame.t_ns > self._fast_until_ns:
+                # what the accelerometer-bias states learned while the attitude converged is not bias
+                self._settled = True
+                self.abn = self.abe = self.abd = 0.0
         self._position(frame, fx, fy, fz, dt)
 
     def _init_attitude(self, fx: float, fy: float, fz: float, mag: tuple[float, float, float]) -> None:
@@ -277,7 +284,7 @@ class Estimator:
         if prev is not None and 0.0 < (g.measured_at_ns - prev[0]) * 1e-9 < 1.0:
             gdt = (g.measured_at_ns - prev[0]) * 1e-9
             a = self._alin
-            k = 1.0 - math.exp(-gdt / 0.3)
+            k = 1.0 - math.exp(-gdt / self._alin_tau)
             a[0] += k * ((vn_g - prev[1]) / gdt - a[0])
             a[1] += k * ((ve_g - prev[2]) / gdt - a[1])
             a[2] += k * ((vd_g - prev[3]) / gdt - a[2])
