@@ -1,5 +1,8 @@
 """The autopilot process of a run (SITL-like): autopilots in lockstep, each with its MAVLink server and tlog.
 
+Parameters a ground station sets are kept in ``<run dir>/params/vehicle-<i>.json`` and restored when the
+vehicle starts again in the same run directory.
+
 ``harness run`` starts one of these for all vehicles (the host benchmark in ``docs/autopilot.md`` shows
 one process for several vehicles is cheaper than one per vehicle). Each vehicle gets a MAVLink server
 on the wall clock (API port ``api_port_base + i``, GCS port) and writes ``vehicle-<i>.tlog`` in the run
@@ -21,6 +24,7 @@ from typing import BinaryIO
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.autopilot.host import run_autopilots
 from harness.autopilot.mavlink.codec import SigningConfig
+from harness.autopilot.mavlink.param_store import persist_params
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
 from harness.errors import HarnessError, ScenarioError
@@ -69,7 +73,11 @@ class _Attached:
 
 
 def attach_mavlink(ap: Autopilot, ports: PortsConfig, run_dir: Path | None, signing: SigningConfig | None) -> _Attached:
-    tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog") if run_dir is not None else None
+    tlog = None
+    if run_dir is not None:
+        tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog")
+        for refused in persist_params(ap.params, run_dir, ap.vehicle):
+            log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
     server = MavlinkServer(ap, ap.vehicle, ports, signing, tap=tlog.write if tlog else None).start()
     return _Attached(server, tlog)
 
