@@ -212,6 +212,11 @@ def test_offboard_position_body_velocity_and_attitude() -> None:
     stream(OffboardSetpoint(velocity_m_s=(2.0, 0.0, 0.0), frame=OffboardFrame.BODY_NED), 4.0)
     assert abs(rig.sim.vel[1] - 2.0) < 0.3 and abs(rig.sim.vel[0]) < 0.3
     stream(OffboardSetpoint(velocity_m_s=(0.0, 0.0, 0.0)), 3.0)
+    # acceleration only: 1 m/s² north for 2 s
+    v0 = rig.sim.vel[0]
+    stream(OffboardSetpoint(accel_m_s2=(1.0, 0.0, 0.0)), 2.0)
+    assert 1.4 < rig.sim.vel[0] - v0 < 2.6
+    stream(OffboardSetpoint(velocity_m_s=(0.0, 0.0, 0.0)), 4.0)
     # attitude: 10 degrees of roll at hover thrust, facing east, accelerates south
     x0 = rig.sim.pos[0]
     stream(AttitudeTarget(quat_from_euler(math.radians(10.0), 0.0, math.pi / 2), 0.5), 2.0)
