@@ -33,6 +33,7 @@ from harness.autopilot.mathutil import GeoRef
 from harness.autopilot.navigator import Orbit
 from harness.autopilot.params import Params
 from harness.autopilot.snapshot import build_state
+from harness.autopilot.supervisor import arming_check, supervise
 from harness.autopilot.validate import check_mission, finite
 from harness.errors import ScenarioError
 from harness.fdm.frame import SensorFrame
@@ -82,6 +83,10 @@ class Autopilot:
         self._armed_ns = 0
         self._landed_since_ns: int | None = None
         self._fence_breached = False
+        self._was_airborne = False
+        self._offboard_kind = ""
+        self._offboard_sp: OffboardSetpoint | None = None
+        self._offboard_att: AttitudeTarget | None = None
         self._cache: VehicleState | None = None
 
     # ------------------------------------------------------------------ lockstep
@@ -116,69 +121,7 @@ class Autopilot:
         self._cache = None
 
     def _supervise(self) -> None:
-        c = self.core
-        p = self.params
-        t = c.t_ns
-        nav = c.nav
-        in_air = c.armed and c.landed_state != LandedState.ON_GROUND
-        # auto-disarm: after touchdown, and when armed but never taken off
-        if c.armed and c.landed_state == LandedState.ON_GROUND:
-            if self._landed_since_ns is None:
-                self._landed_since_ns = t
-            waited = (t - self._landed_since_ns) * 1e-9
-            limit = p["COM_DISARM_LAND"] if self._was_airborne else p["COM_DISARM_PRFLT"]
-            if limit > 0 and waited > limit and not nav.wants_climb and not self._offboard_climbing():
-                self._disarm("Disarmed after landing" if self._was_airborne else "Disarmed: no takeoff")
-                return
-        else:
-            self._landed_since_ns = None
-            if in_air:
-                self._was_airborne = True
-        if c.mode == FlightMode.TAKEOFF and in_air and nav.takeoff_reached():
-            self._say(Severity.INFO, "Takeoff complete")
-            self._set_mode(FlightMode.HOLD)
-        if c.mode == FlightMode.MISSION and nav.mission_done:
-            nav.mission_done = False
-            self._say(Severity.INFO, "Mission finished")
-            if in_air and not nav.landing:
-                self._set_mode(FlightMode.HOLD)
-        if not in_air:
-            return
-        rem = c.battery.remaining
-        if rem < p["BAT_CRIT_THR"] and self.failsafe != "battery_critical":
-            self.failsafe = "battery_critical"
-            self._say(Severity.CRITICAL, f"Battery critical ({rem:.0%}): landing")
-            self._set_mode(FlightMode.LAND)
-        elif rem < p["BAT_LOW_THR"] and self.failsafe not in ("battery", "battery_critical"):
-            self.failsafe = "battery"
-            act = int(p["COM_LOW_BAT_ACT"])
-            self._say(Severity.WARNING, f"Battery low ({rem:.0%})" + (": returning" if act == 3 else ""))
-            if act == 3 and self.home_ned is not None:
-                self._set_mode(FlightMode.RTL)
-            elif act in (2, 3):
-                self._set_mode(FlightMode.LAND)
-        if c.mode == FlightMode.OFFBOARD:
-            lost_s = (self.wall.now_ns() - self._offboard_wall_ns) * 1e-9
-            if lost_s > p["COM_OF_LOSS_T"]:
-                self.failsafe = "offboard_loss"
-                act = int(p["COM_OBL_RC_ACT"])
-                target = {3: FlightMode.RTL, 4: FlightMode.LAND}.get(act, FlightMode.HOLD)
-                self._say(Severity.WARNING, f"Offboard setpoints lost for {lost_s:.1f} s: {target.name}")
-                self._set_mode(target)
-        if self.home_ned is not None:
-            est = c.est
-            breach = c.fence.breach((est.pn, est.pe, est.pd), self.home_ned, self._to_local)
-            if breach and not self._fence_breached:
-                self._fence_breached = True
-                act = int(p["GF_ACTION"])
-                self._say(Severity.CRITICAL, f"Geofence breached: {breach}")
-                if act >= 2 and c.mode not in (FlightMode.RTL, FlightMode.LAND):
-                    self.failsafe = "geofence"
-                    self._set_mode({2: FlightMode.HOLD, 3: FlightMode.RTL}.get(act, FlightMode.LAND))
-            elif not breach:
-                self._fence_breached = False
-
-    _was_airborne = False
+        supervise(self)
 
     def _offboard_climbing(self) -> bool:
         c = self.core
@@ -228,31 +171,7 @@ class Autopilot:
     # ------------------------------------------------------------------ arming
     def arming_check(self) -> str:
         """'' when the vehicle may arm, else the first reason it may not."""
-        c = self.core
-        e = c.est
-        p = self.params
-        t = max(c.t_ns, 0)
-        if c.t_ns < 0 or t - e.last_imu_ns > 500_000_000:
-            return "no IMU data"
-        if not e.att_valid:
-            return "attitude estimate not initialised"
-        if not p["COM_ARM_WO_GPS"]:
-            g = e.gps
-            if g is None or g.fix_type < 3:
-                return f"no 3D GPS fix (fix type {0 if g is None else g.fix_type})"
-            if not e.gps_fix_ok():
-                return f"GPS not good enough ({g.satellites} satellites, eph {g.eph_m:.1f} m)"
-            if not e.pos_valid:
-                return "position estimate not converged"
-        if c.battery.remaining < p["BAT_LOW_THR"]:
-            return f"battery low ({c.battery.remaining:.0%})"
-        if c.mode in _NO_RC:
-            return f"mode {c.mode.name} needs a manual control input (RC); none is configured"
-        if c.mode == FlightMode.OFFBOARD and not self._offboard_fresh():
-            return "offboard mode without a recent setpoint"
-        if c.mode == FlightMode.MISSION and not c.nav.items:
-            return "mission mode without a mission"
-        return ""
+        return arming_check(self)
 
     def arm(self, force: bool = False) -> CommandResult:
         with self._lock:
@@ -333,10 +252,6 @@ class Autopilot:
             nav.offboard_sp = None
         elif self._offboard_sp is not None:
             nav.set_offboard(self._offboard_sp)
-
-    _offboard_kind = ""
-    _offboard_sp: OffboardSetpoint | None = None
-    _offboard_att: AttitudeTarget | None = None
 
     def takeoff(self, alt_m: float | None = None) -> CommandResult:
         with self._lock:
