@@ -88,6 +88,21 @@ def _progress_printer() -> Callable[[str], None]:
 def _plan_from_args(a: argparse.Namespace) -> LaunchPlan:
     from harness.scenario.launcher import LaunchPlan, MissionPlan
 
+    if getattr(a, "scenario", None):
+        from harness.scenario.config import load_scenario
+
+        if a.mission or a.vehicles is not None:
+            raise ScenarioError("give either a scenario file or --vehicles/--mission, not both")
+        return load_scenario(
+            a.scenario,
+            out=Path(a.out) if a.out else None,
+            seed=a.seed,
+            speed=a.speed,
+            duration_s=a.duration,
+            network=a.network,
+            progress=_progress_printer(),
+        )
+
     missions = [MissionPlan(Path(m)) for m in a.mission]
     for m in missions:
         if not m.script.is_file():
@@ -101,10 +116,10 @@ def _plan_from_args(a: argparse.Namespace) -> LaunchPlan:
         vehicles=vehicles,
         out=Path(a.out) if a.out else Path("runs") / time.strftime("%Y%m%d-%H%M%S"),
         missions=tuple(missions),
-        seed=a.seed,
+        seed=a.seed or 0,
         speed=a.speed,
         duration_s=a.duration,
-        network=a.network,
+        network=a.network or "none",
         progress=_progress_printer(),
     )
 
@@ -186,8 +201,8 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--mission", action="append", default=[], help="mission script (one: every vehicle flies it)")
     r.add_argument("--speed", type=_speed, default=None, help="'max' (default) or a real-time factor")
     r.add_argument("--duration", type=float, default=None, help="sim-time limit in seconds")
-    r.add_argument("--network", choices=["builtin", "ns3", "none"], default="none")
-    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--network", choices=["builtin", "ns3", "none"], default=None)
+    r.add_argument("--seed", type=int, default=None)
     r.add_argument("--out", default=None, help="run directory (default runs/<timestamp>)")
     r.add_argument("--plot", action="store_true", help="write plots into the run directory at the end")
 
@@ -198,6 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="a headless batch run: physics, autopilots, network and missions")
+    r.add_argument("scenario", nargs="?", default=None, help="scenario file (TOML); or use --vehicles/--mission")
     _add_run_options(r)
     r.set_defaults(func=_cmd_run)
 

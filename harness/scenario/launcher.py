@@ -286,6 +286,7 @@ class Launcher:
         plan = self.plan
         env = dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out))
         vehicles = ",".join(str(i) for i in range(plan.vehicles))
+        overrides = {str(i): p for i, p in enumerate(plan.params) if p}
         sup.start(
             "autopilot",
             [
@@ -302,6 +303,8 @@ class Launcher:
                 str(self.gcs_port),
                 "--run-dir",
                 str(plan.out),
+                "--params",
+                json.dumps(overrides),
             ],
             env=env,
         )

@@ -1,0 +1,244 @@
+"""Scenario files (TOML): validated into a :class:`~harness.scenario.launcher.LaunchPlan`.
+
+Every error is a :class:`ScenarioError` whose message is one line naming the file, the field and what is
+wrong (``scenario.toml: vehicles[1].mission: file missions/x.py does not exist``). Unknown keys get the
+closest valid name suggested. Paths in the file are relative to the file's directory.
+
+Reference: ``docs/scenario.md``.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from harness.errors import ScenarioError
+from harness.scenario.launcher import LaunchPlan, MissionPlan
+
+_TOP = {"seed", "speed", "duration_s", "out", "world", "rates", "wind", "network", "vehicles", "channel", "mavlink"}
+_SECTIONS: dict[str, set[str]] = {
+    "world": {"lat_deg", "lon_deg", "alt_amsl_m"},
+    "rates": {"physics_hz", "tick_hz", "phase_every"},
+    "wind": {"north_m_s", "east_m_s", "down_m_s", "turbulence"},
+    "network": {"model", "params"},
+    "channel": {"stall_timeout_s"},
+    "mavlink": {"api_port_base", "gcs_port"},
+}
+_VEHICLES_TABLE = {"count", "mission", "args", "spawn", "spacing_m", "params"}
+_VEHICLE = {"mission", "args", "spawn_ned_m", "params"}
+_SPAWNS = {"grid", "line", "circle"}
+
+
+class _Ctx:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def fail(self, field: str, why: str) -> ScenarioError:
+        return ScenarioError(f"{self.path}: {field}: {why}")
+
+    def keys(self, table: Mapping[str, Any], allowed: set[str], where: str) -> None:
+        for key in table:
+            if key not in allowed:
+                close = difflib.get_close_matches(key, sorted(allowed), n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else f" (valid: {', '.join(sorted(allowed))})"
+                raise self.fail(f"{where}{key}", f"unknown key{hint}")
+
+    def number(self, value: Any, field: str, *, positive: bool = False, minimum: float | None = None) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.fail(field, f"expected a number, got {type(value).__name__} {value!r}")
+        x = float(value)
+        if not math.isfinite(x):
+            raise self.fail(field, f"must be finite, got {value!r}")
+        if positive and not x > 0:
+            raise self.fail(field, f"must be > 0, got {value!r}")
+        if minimum is not None and x < minimum:
+            raise self.fail(field, f"must be >= {minimum:g}, got {value!r}")
+        return x
+
+    def integer(self, value: Any, field: str, *, minimum: int | None = None) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(field, f"expected an integer, got {type(value).__name__} {value!r}")
+        if minimum is not None and value < minimum:
+            raise self.fail(field, f"must be >= {minimum}, got {value}")
+        return value
+
+    def table(self, value: Any, field: str) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(field, f"expected a table, got {type(value).__name__}")
+        return value
+
+    def mission(self, value: Any, field: str) -> Path:
+        if not isinstance(value, str) or not value:
+            raise self.fail(field, f"expected the path of a script, got {value!r}")
+        path = (self.path.parent / value).resolve()
+        if not path.is_file():
+            raise self.fail(field, f"file {value} does not exist (looked in {path.parent})")
+        return path
+
+    def args(self, value: Any, field: str) -> tuple[str, ...]:
+        if not isinstance(value, list) or not all(isinstance(a, str | int | float) for a in value):
+            raise self.fail(field, f"expected a list of strings, got {value!r}")
+        return tuple(str(a) for a in value)
+
+    def params(self, value: Any, field: str) -> dict[str, float]:
+        table = self.table(value, field)
+        return {str(k): self.number(v, f"{field}.{k}") for k, v in table.items()}
+
+    def vec3(self, value: Any, field: str) -> tuple[float, float, float]:
+        if not isinstance(value, list) or len(value) != 3:
+            raise self.fail(field, f"expected [north, east, down] in metres, got {value!r}")
+        n, e, d = (self.number(v, f"{field}[{i}]") for i, v in enumerate(value))
+        return (n, e, d)
+
+
+def _spawn_layout(kind: str, count: int, spacing: float) -> tuple[tuple[float, float, float], ...]:
+    if kind == "line":
+        return tuple((0.0, i * spacing, 0.0) for i in range(count))
+    if kind == "circle":
+        radius = max(spacing, spacing * count / (2 * math.pi))
+        return tuple(
+            (radius * math.cos(2 * math.pi * i / count), radius * math.sin(2 * math.pi * i / count), 0.0)
+            for i in range(count)
+        )
+    cols = max(1, math.ceil(math.sqrt(count)))
+    return tuple((-(i // cols) * spacing, (i % cols) * spacing, 0.0) for i in range(count))
+
+
+def load_scenario(path: str | Path, **overrides: Any) -> LaunchPlan:
+    """Read and validate a scenario file; ``overrides`` (from the command line) win over the file."""
+    path = Path(path)
+    ctx = _Ctx(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: the scenario file does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    ctx.keys(raw, _TOP, "")
+    for name, allowed in _SECTIONS.items():
+        if name in raw:
+            ctx.keys(ctx.table(raw[name], name), allowed, f"{name}.")
+    world = raw.get("world", {})
+    rates = raw.get("rates", {})
+    wind = raw.get("wind", {})
+    net = raw.get("network", {})
+    channel = raw.get("channel", {})
+    mav = raw.get("mavlink", {})
+
+    speed: float | None = None
+    if "speed" in raw:
+        if raw["speed"] == "max":
+            speed = None
+        else:
+            speed = ctx.number(raw["speed"], "speed", positive=True)
+    physics_hz = ctx.number(rates.get("physics_hz", 1000.0), "rates.physics_hz", positive=True)
+    tick_hz = ctx.number(rates.get("tick_hz", 250.0), "rates.tick_hz", positive=True)
+    ratio = physics_hz / tick_hz
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise ctx.fail(
+            "rates.physics_hz", f"must be a whole multiple of rates.tick_hz ({tick_hz:g}), got {physics_hz:g}"
+        )
+    model = net.get("model", "none")
+    if model not in ("none", "builtin", "ns3"):
+        raise ctx.fail("network.model", f"must be 'builtin', 'ns3' or 'none', got {model!r}")
+
+    missions, spawns, params = _vehicles(ctx, raw.get("vehicles"))
+    plan = LaunchPlan(
+        vehicles=len(missions),
+        out=Path(str(raw.get("out", "runs/" + path.stem))),
+        missions=tuple(missions),
+        seed=ctx.integer(raw.get("seed", 0), "seed", minimum=0),
+        physics_hz=physics_hz,
+        tick_hz=tick_hz,
+        phase_every=ctx.integer(rates.get("phase_every", 5), "rates.phase_every", minimum=1),
+        speed=speed,
+        duration_s=ctx.number(raw["duration_s"], "duration_s", positive=True) if "duration_s" in raw else None,
+        network=str(model),
+        network_params=dict(ctx.table(net.get("params", {}), "network.params")),
+        stall_timeout_s=ctx.number(channel.get("stall_timeout_s", 30.0), "channel.stall_timeout_s", positive=True),
+        origin=(
+            ctx.number(world.get("lat_deg", 47.397742), "world.lat_deg", minimum=-90),
+            ctx.number(world.get("lon_deg", 8.545594), "world.lon_deg", minimum=-180),
+            ctx.number(world.get("alt_amsl_m", 488.0), "world.alt_amsl_m"),
+        ),
+        wind_ned_m_s=(
+            ctx.number(wind.get("north_m_s", 0.0), "wind.north_m_s"),
+            ctx.number(wind.get("east_m_s", 0.0), "wind.east_m_s"),
+            ctx.number(wind.get("down_m_s", 0.0), "wind.down_m_s"),
+        ),
+        turbulence=_turbulence(ctx, wind.get("turbulence", 0.0)),
+        spawn_ned_m=spawns,
+        params=tuple(params),
+        api_port_base=ctx.integer(mav.get("api_port_base", 14540), "mavlink.api_port_base", minimum=1),
+        gcs_port=ctx.integer(mav.get("gcs_port", 14550), "mavlink.gcs_port", minimum=0),
+    )
+    fields = {k: v for k, v in overrides.items() if v is not None}
+    return _replace(plan, fields)
+
+
+def _turbulence(ctx: _Ctx, value: Any) -> float:
+    from harness.fdm.environment import TURBULENCE_LEVELS
+
+    if isinstance(value, str):
+        if value not in TURBULENCE_LEVELS:
+            raise ctx.fail("wind.turbulence", f"expected a number or one of {sorted(TURBULENCE_LEVELS)}, got {value!r}")
+        return TURBULENCE_LEVELS[value]
+    return ctx.number(value, "wind.turbulence", minimum=0)
+
+
+def _vehicles(
+    ctx: _Ctx, raw: Any
+) -> tuple[list[MissionPlan | None], tuple[tuple[float, float, float], ...], list[dict[str, float]]]:
+    if raw is None:
+        raise ctx.fail("vehicles", "missing: give vehicles = N, a [vehicles] table with count, or [[vehicles]] entries")
+    if isinstance(raw, bool | int):
+        count = ctx.integer(raw, "vehicles", minimum=1)
+        return [None] * count, _spawn_layout("grid", count, 5.0), [{}] * count
+    if isinstance(raw, dict):
+        ctx.keys(raw, _VEHICLES_TABLE, "vehicles.")
+        count = ctx.integer(raw.get("count", 1), "vehicles.count", minimum=1)
+        mission = (
+            MissionPlan(ctx.mission(raw["mission"], "vehicles.mission"), ctx.args(raw.get("args", []), "vehicles.args"))
+            if "mission" in raw
+            else None
+        )
+        layout = raw.get("spawn", "grid")
+        if layout not in _SPAWNS:
+            raise ctx.fail("vehicles.spawn", f"must be one of {sorted(_SPAWNS)}, got {layout!r}")
+        spacing = ctx.number(raw.get("spacing_m", 5.0), "vehicles.spacing_m", positive=True)
+        shared = ctx.params(raw.get("params", {}), "vehicles.params")
+        return [mission] * count, _spawn_layout(layout, count, spacing), [shared] * count
+    if isinstance(raw, list):
+        if not raw:
+            raise ctx.fail("vehicles", "the list is empty: a run needs at least one vehicle")
+        missions: list[MissionPlan | None] = []
+        spawns: list[tuple[float, float, float]] = []
+        per_vehicle: list[dict[str, float]] = []
+        defaults = _spawn_layout("grid", len(raw), 5.0)
+        for i, entry in enumerate(raw):
+            where = f"vehicles[{i}]"
+            table = ctx.table(entry, where)
+            ctx.keys(table, _VEHICLE, f"{where}.")
+            missions.append(
+                MissionPlan(
+                    ctx.mission(table["mission"], f"{where}.mission"), ctx.args(table.get("args", []), f"{where}.args")
+                )
+                if "mission" in table
+                else None
+            )
+            spawns.append(
+                ctx.vec3(table["spawn_ned_m"], f"{where}.spawn_ned_m") if "spawn_ned_m" in table else defaults[i]
+            )
+            per_vehicle.append(ctx.params(table.get("params", {}), f"{where}.params"))
+        return missions, tuple(spawns), per_vehicle
+    raise ctx.fail("vehicles", f"expected a count, a table or a list of tables, got {type(raw).__name__}")
+
+
+def _replace(plan: LaunchPlan, fields: dict[str, Any]) -> LaunchPlan:
+    import dataclasses
+
+    return dataclasses.replace(plan, **fields) if fields else plan
