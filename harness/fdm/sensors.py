@@ -132,16 +132,16 @@ class SensorModel:
         vel_ned_m_s: Vec3,
     ) -> tuple[Imu, Mag | None, Baro | None, Gps | None]:
         cfg, on = self.cfg, self._on
-        z = self.rng.standard_normal(12)  # a fixed number of draws per tick keeps the streams aligned
+        z = self.rng.standard_normal(12).tolist()  # a fixed number of draws per tick keeps the streams aligned
         ab, gb = self.accel_bias, self.gyro_bias
         for i in range(3):
-            ab[i] += self._walk_accel * float(z[i])
-            gb[i] += self._walk_gyro * float(z[3 + i])
+            ab[i] += self._walk_accel * (z[i])
+            gb[i] += self._walk_gyro * (z[3 + i])
         an, gn = cfg.accel_noise_m_s2 * on, cfg.gyro_noise_rad_s * on
         sf, w = specific_force_body_m_s2, rates_body_rad_s
         imu = Imu(
-            (sf[0] + ab[0] + an * float(z[6]), sf[1] + ab[1] + an * float(z[7]), sf[2] + ab[2] + an * float(z[8])),
-            (w[0] + gb[0] + gn * float(z[9]), w[1] + gb[1] + gn * float(z[10]), w[2] + gb[2] + gn * float(z[11])),
+            (sf[0] + ab[0] + an * (z[6]), sf[1] + ab[1] + an * (z[7]), sf[2] + ab[2] + an * (z[8])),
+            (w[0] + gb[0] + gn * (z[9]), w[1] + gb[1] + gn * (z[10]), w[2] + gb[2] + gn * (z[11])),
         )
         self.baro_bias_m += self._walk_baro * float(self.rng.standard_normal())
         mag = baro = gps = None

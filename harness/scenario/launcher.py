@@ -69,6 +69,9 @@ class LaunchPlan:
     api_port_base: int = 14540
     gcs_port: int = 14550
     record_hz: float = 50.0
+    autopilots: str = "in-process"
+    """"in-process": autopilots and MAVLink servers live in the physics process (no socket hop per tick);
+    "process": one SITL-like autopilot process for all vehicles, connected to the channel."""
     progress: Callable[[str], None] | None = None
 
 
@@ -236,11 +239,16 @@ class Launcher:
         t_ns = 0
         ports = allocate(n, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
+        local: list[Any] = []
         with Children(plan.out) as sup:
             try:
                 ports.release()
+                if plan.autopilots == "in-process":
+                    local = self._local_autopilots(channel)
                 self._start_children(sup, channel.address)
-                expected = 1 + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
+                expected = (
+                    (0 if local else 1) + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
+                )
                 if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=60.0):
                     raise SimulationError(
                         f"only {len(channel.subscribers())} of {expected} processes joined the channel within 60 s "
@@ -251,9 +259,14 @@ class Launcher:
                 status, message = "interrupted", "stopped by Ctrl-C"
             except SimulationError as exc:
                 status, message = "failed", str(exc)
+            except Exception as exc:  # a bug must still stop every process and write the summary
+                log.exception("the run failed")
+                status, message = "failed", f"internal error: {exc!r}"
             finally:
                 channel.close("end of run")
                 world.close()
+                for handle in local:
+                    handle.close()
         wall_s = (real_monotonic_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns
         exits = {e.vehicle: e for e in channel.mission_exits}
@@ -282,32 +295,57 @@ class Launcher:
         )
         return result
 
+    def _local_autopilots(self, channel: Channel) -> list[Any]:
+        """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process."""
+        from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+        from harness.autopilot.mavlink.transport import PortsConfig
+        from harness.autopilot.sitl import attach_mavlink
+        from harness.fdm.frame import decode_frame
+
+        plan = self.plan
+        aps = {
+            i: Autopilot(AutopilotConfig(vehicle=i, params=plan.params[i] if i < len(plan.params) else {}))
+            for i in range(plan.vehicles)
+        }
+        ports = PortsConfig(api_port_base=self.api_port_base, gcs_port=self.gcs_port)
+        handles = [attach_mavlink(ap, ports, plan.out, None) for ap in aps.values()]
+
+        def step(m: p.BeginTickAC) -> p.EndTickAC:
+            ap = aps[m.vehicle]
+            return p.EndTickAC(m.t_ns, m.vehicle, ap.step(decode_frame(m.frame)), ap.packed_status())
+
+        channel.attach_local_autopilots(aps, step)
+        return handles
+
     def _start_children(self, sup: Any, address: str) -> None:
         plan = self.plan
         env = dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out))
         vehicles = ",".join(str(i) for i in range(plan.vehicles))
         overrides = {str(i): p for i, p in enumerate(plan.params) if p}
-        sup.start(
-            "autopilot",
-            [
-                _python(),
-                "-m",
-                "harness.autopilot.sitl",
-                "--address",
-                address,
-                "--vehicles",
-                vehicles,
-                "--api-port-base",
-                str(self.api_port_base),
-                "--gcs-port",
-                str(self.gcs_port),
-                "--run-dir",
-                str(plan.out),
-                "--params",
-                json.dumps(overrides),
-            ],
-            env=env,
-        )
+        if plan.autopilots == "in-process":
+            vehicles = ""
+        if vehicles:
+            sup.start(
+                "autopilot",
+                [
+                    _python(),
+                    "-m",
+                    "harness.autopilot.sitl",
+                    "--address",
+                    address,
+                    "--vehicles",
+                    vehicles,
+                    "--api-port-base",
+                    str(self.api_port_base),
+                    "--gcs-port",
+                    str(self.gcs_port),
+                    "--run-dir",
+                    str(plan.out),
+                    "--params",
+                    json.dumps(overrides),
+                ],
+                env=env,
+            )
         if plan.network != "none":
             sup.start(
                 "network",
@@ -408,9 +446,10 @@ class Launcher:
                 if f.truth.crashed and not s.crashed:
                     s.crashed = True
                     world.event(t_ns, "crash", {"vehicle": f.vehicle})
-            for name, code in sup.poll_exits():
-                if name == "autopilot" or name == "network":
-                    raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
+            if tick % 50 == 0:  # every 0.2 s of sim time: a child's death is noticed, waitpid stays cheap
+                for name, code in sup.poll_exits():
+                    if name in ("autopilot", "network"):
+                        raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
             if plan.progress is not None and real_monotonic_ns() - last_progress > 500_000_000:
                 last_progress = real_monotonic_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
