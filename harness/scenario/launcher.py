@@ -276,7 +276,12 @@ class Launcher:
                 s.mission_exit_code = e.exit_code if e is not None else None
                 if status == "ok" and (e is None or e.exit_code != 0):
                     status = "failed"
-                    message = message or f"the mission of vehicle {s.id} exited with {s.mission_exit_code}"
+                    message = message or (
+                        f"the mission of vehicle {s.id} was still running when the run ended at "
+                        f"{phys.t_ns / NS_PER_S:.1f} s of sim time"
+                        if e is None
+                        else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
+                    )
         faults = [f.__dict__ for f in channel.faults]
         if any(s.crashed for s in summaries) and status == "ok":
             status, message = "failed", "a vehicle crashed"

@@ -262,6 +262,7 @@ DEFAULT_INTERVALS_NS: dict[int, int] = {
     mavlink2.MAVLINK_MSG_ID_VFR_HUD: _HZ // 4,
     mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: _HZ,
     mavlink2.MAVLINK_MSG_ID_ALTITUDE: _HZ // 2,
+    mavlink2.MAVLINK_MSG_ID_HOME_POSITION: 2 * _HZ,  # PX4 streams it at 0.5 Hz: MAVSDK's home() stream needs it
 }
 """Default stream intervals; messages not listed are sent only on request or event."""
 
