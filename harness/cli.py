@@ -85,7 +85,7 @@ def _progress_printer() -> Callable[[str], None]:
     return lambda line: print(line, file=sys.stderr, flush=True)
 
 
-def _plan_from_args(a: argparse.Namespace) -> LaunchPlan:
+def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None) -> LaunchPlan:
     from harness.scenario.launcher import LaunchPlan, MissionPlan
 
     if getattr(a, "scenario", None):
@@ -103,7 +103,7 @@ def _plan_from_args(a: argparse.Namespace) -> LaunchPlan:
             progress=_progress_printer(),
         )
 
-    missions = [MissionPlan(Path(m)) for m in a.mission]
+    missions = [MissionPlan(Path(m), tuple(script_args or ())) for m in a.mission]
     for m in missions:
         if not m.script.is_file():
             raise ScenarioError(f"--mission {m.script}: the file does not exist")
@@ -137,7 +137,7 @@ def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
     from harness.scenario.launcher import Launcher
 
     _terminate_as_interrupt()
-    plan = _plan_from_args(a)
+    plan = _plan_from_args(a, rest)
     result = Launcher(plan).run()
     if sys.stderr.isatty():
         sys.stderr.write("\n")
