@@ -21,31 +21,20 @@ from mcap.writer import CompressionType, Writer
 
 from harness.simclock.clock import NS_PER_S
 
+_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+_XYZ = {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}
+
 _POSE_SCHEMA = {
     "title": "foxglove.PoseInFrame",
     "type": "object",
     "properties": {
-        "timestamp": {
-            "type": "object",
-            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
-        },
+        "timestamp": _TIME,
         "frame_id": {"type": "string"},
         "pose": {
             "type": "object",
             "properties": {
-                "position": {
-                    "type": "object",
-                    "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}},
-                },
-                "orientation": {
-                    "type": "object",
-                    "properties": {
-                        "x": {"type": "number"},
-                        "y": {"type": "number"},
-                        "z": {"type": "number"},
-                        "w": {"type": "number"},
-                    },
-                },
+                "position": {"type": "object", "properties": _XYZ},
+                "orientation": {"type": "object", "properties": {**_XYZ, "w": {"type": "number"}}},
             },
         },
     },
@@ -55,7 +44,7 @@ _FIX_SCHEMA = {
     "title": "foxglove.LocationFix",
     "type": "object",
     "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}},
+        "timestamp": _TIME,
         "frame_id": {"type": "string"},
         "latitude": {"type": "number"},
         "longitude": {"type": "number"},

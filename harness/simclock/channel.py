@@ -509,21 +509,9 @@ class Channel:
         if isinstance(msg, p.EndTickAC):
             self._on_end_tick_ac(peer, msg)
         elif isinstance(msg, p.EndTick0):
-            if peer in self._wait0 and msg.t_ns == self._t_ns:
-                self._wait0.discard(peer)
-                self._set_deadline(peer, None)
-                self._trace("et0", peer)
-                self._progress()
-            else:
-                self._peer_fault(peer, f"sent END-TICK-0 for t={msg.t_ns} ns out of phase", p.ErrorCode.UNEXPECTED)
+            self._on_phase_end(peer, msg.t_ns, self._wait0, "0")
         elif isinstance(msg, p.EndTick1):
-            if peer in self._wait1 and msg.t_ns == self._t_ns:
-                self._wait1.discard(peer)
-                self._set_deadline(peer, None)
-                self._trace("et1", peer)
-                self._progress()
-            else:
-                self._peer_fault(peer, f"sent END-TICK-1 for t={msg.t_ns} ns out of phase", p.ErrorCode.UNEXPECTED)
+            self._on_phase_end(peer, msg.t_ns, self._wait1, "1")
         elif isinstance(msg, p.Enqueue):
             self._on_enqueue(peer, msg)
         elif isinstance(msg, p.Deliver):
@@ -540,6 +528,16 @@ class Channel:
             self._peer_fault(peer, f"reported an error: {msg.message}", p.ErrorCode.PEER_LOST)
         else:
             self._peer_fault(peer, f"sent {type(msg).__name__}, which it may not send", p.ErrorCode.UNEXPECTED)
+
+    def _on_phase_end(self, peer: _Peer, t_ns: int, waiting: set[_Peer], phase: str) -> None:
+        """END-TICK-0 / END-TICK-1: ``peer`` is done with this tick's phase (and only then may say so)."""
+        if peer not in waiting or t_ns != self._t_ns:
+            self._peer_fault(peer, f"sent END-TICK-{phase} for t={t_ns} ns out of phase", p.ErrorCode.UNEXPECTED)
+            return
+        waiting.discard(peer)
+        self._set_deadline(peer, None)
+        self._trace(f"et{phase}", peer)
+        self._progress()
 
     def _on_end_tick_ac(self, peer: _Peer, msg: p.EndTickAC) -> None:
         waiting = self._wait_ac.get(peer)
