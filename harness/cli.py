@@ -121,6 +121,8 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         duration_s=a.duration,
         network=a.network or "none",
         progress=_progress_printer(),
+        pause_at_s=a.pause_at,
+        pause_wall_s=a.pause_for,
     )
 
 
@@ -138,7 +140,9 @@ def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
 
     _terminate_as_interrupt()
     plan = _plan_from_args(a, rest)
-    result = Launcher(plan).run()
+    launcher = Launcher(plan)
+    signal.signal(signal.SIGUSR1, lambda *_: launcher.toggle_pause())  # kill -USR1 <pid> pauses / resumes
+    result = launcher.run()
     if sys.stderr.isatty():
         sys.stderr.write("\n")
     print(
@@ -205,6 +209,10 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--seed", type=int, default=None)
     r.add_argument("--out", default=None, help="run directory (default runs/<timestamp>)")
     r.add_argument("--plot", action="store_true", help="write plots into the run directory at the end")
+    r.add_argument(
+        "--pause-at", type=float, default=None, metavar="SIM_S", help="stall test: stop the clock at this sim time"
+    )
+    r.add_argument("--pause-for", type=float, default=5.0, metavar="WALL_S", help="... for this long (wall seconds)")
 
 
 def build_parser() -> argparse.ArgumentParser:

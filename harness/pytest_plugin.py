@@ -115,9 +115,13 @@ def run_harness(
     speed: float | None = None,
     seed: int = 0,
     args: Sequence[str] = (),
+    extra: Sequence[str] = (),
     timeout_s: float = 600.0,
 ) -> RunRecord:
-    """Run ``harness run`` in a subprocess (no state shared with the test process) and load the result."""
+    """Run ``harness run`` in a subprocess (no state shared with the test process) and load the result.
+
+    ``args`` go to the mission script, ``extra`` to ``harness run`` itself.
+    """
     missions = [mission] if isinstance(mission, str | Path) else list(mission)
     cmd = [sys.executable, "-m", "harness.cli", "run", "--out", str(out), "--seed", str(seed)]
     for m in missions:
@@ -128,6 +132,7 @@ def run_harness(
         cmd += ["--duration", str(duration_s)]
     if speed is not None:
         cmd += ["--speed", str(speed)]
+    cmd += list(extra)
     if args:
         cmd += ["--", *args]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)

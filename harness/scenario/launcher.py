@@ -21,6 +21,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,6 +70,9 @@ class LaunchPlan:
     api_port_base: int = 14540
     gcs_port: int = 14550
     record_hz: float = 50.0
+    pause_at_s: float | None = None
+    """Stand the clock still once sim time reaches this, for ``pause_wall_s`` of wall time (stall tests)."""
+    pause_wall_s: float = 5.0
     autopilots: str = "in-process"
     """"in-process": autopilots and MAVLink servers live in the physics process (no socket hop per tick);
     "process": one SITL-like autopilot process for all vehicles, connected to the channel."""
@@ -204,6 +208,9 @@ class Launcher:
         self.plan = plan
         plan.out.mkdir(parents=True, exist_ok=True)
         self.epoch_ns = real_time_ns() // NS_PER_S * NS_PER_S
+        self.paused = threading.Event()
+        """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
+        self._pause_timer: threading.Timer | None = None
 
     def run(self) -> RunResult:
         from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
@@ -299,6 +306,13 @@ class Launcher:
             },
         )
         return result
+
+    def toggle_pause(self) -> None:
+        """Pause or resume the clock (``harness run`` does this on SIGUSR1)."""
+        if self.paused.is_set():
+            self.paused.clear()
+        else:
+            self.paused.set()
 
     def _local_autopilots(self, channel: Channel) -> list[Any]:
         """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process."""
@@ -403,6 +417,7 @@ class Launcher:
         missions = sum(1 for m in plan.missions[:n] if m)
         frames = phys.frames()
         link = NativeLink(channel)
+        paused_once = False
         wall0 = real_monotonic_ns()
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
@@ -413,6 +428,20 @@ class Launcher:
                 return "ok", "", t_ns
             if missions and len(channel.mission_exits) >= missions:
                 return "ok", "", t_ns
+            if plan.pause_at_s is not None and not paused_once and t_ns >= plan.pause_at_s * NS_PER_S:
+                paused_once = True
+                self.paused.set()
+                self._pause_timer = threading.Timer(plan.pause_wall_s, self.paused.clear)
+                self._pause_timer.daemon = True
+                self._pause_timer.start()
+            if self.paused.is_set():
+                stopped = real_monotonic_ns()
+                world.event(t_ns, "paused", {})
+                while self.paused.is_set():
+                    real_sleep(0.02)
+                stalled = real_monotonic_ns() - stopped
+                wall0 += stalled  # pacing resumes from here, it does not rush to catch up
+                world.event(t_ns, "resumed", {"paused_wall_s": stalled / NS_PER_S})
             if plan.speed is not None:
                 lag = wall0 + int(t_ns / plan.speed) - real_monotonic_ns()
                 if lag > 0:
