@@ -127,11 +127,13 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
 
 
 def _terminate_as_interrupt() -> None:
-    """SIGTERM (a CI timeout, a supervisor) ends a run the way Ctrl-C does: children stopped, summary written."""
+    """SIGINT and SIGTERM (Ctrl-C, a CI timeout, a supervisor) end a run cleanly: children stopped, summary
+    written — also when the shell started us in the background with SIGINT ignored."""
 
     def handler(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
+    signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
 
 
@@ -181,6 +183,7 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     from harness.scenario.launcher import Launcher
 
     a.mission, a.duration, a.plot = [], None, False
+    _terminate_as_interrupt()
     plan = _plan_from_args(a)
     print(
         f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time. MAVLink: GCS on udp port {plan.gcs_port}, "
