@@ -185,12 +185,7 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     a.mission, a.duration, a.plot = [], None, False
     _terminate_as_interrupt()
     plan = _plan_from_args(a)
-    print(
-        f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time. MAVLink: GCS on udp port {plan.gcs_port}, "
-        f"vehicle i sends to udp port {plan.api_port_base}+i (MAVSDK: udpin://0.0.0.0:{plan.api_port_base}). "
-        "Ctrl-C stops.",
-        flush=True,
-    )
+    print(f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time; Ctrl-C stops.", flush=True)
     result = Launcher(plan).run()
     return 0 if result.status in ("ok", "interrupted") else 1
 

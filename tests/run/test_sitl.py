@@ -1,0 +1,52 @@
+"""`harness sitl`: a ground station on the GCS port sees every vehicle and downloads all parameters."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+
+pytestmark = pytest.mark.sim
+
+
+def test_ground_station_sees_every_vehicle_and_its_parameters(tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "harness.cli", "sitl", "--vehicles", "2", "--out", str(tmp_path / "sitl")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()
+        port = int(re.search(r"ground station on udp port (\d+)", line).group(1))  # type: ignore[union-attr]
+        gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+        seen: dict[int, int] = {}
+        end = time.monotonic() + 20
+        while len(seen) < 2 and time.monotonic() < end:
+            hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=1)
+            if hb is not None:
+                seen[hb.get_srcSystem()] = hb.autopilot
+        assert seen == {1: mavutil.mavlink.MAV_AUTOPILOT_PX4, 2: mavutil.mavlink.MAV_AUTOPILOT_PX4}
+        gcs.mav.param_request_list_send(2, 1)
+        indices: set[int] = set()
+        count = None
+        end = time.monotonic() + 20
+        while (count is None or len(indices) < count) and time.monotonic() < end:
+            p = gcs.recv_match(type="PARAM_VALUE", blocking=True, timeout=1)
+            if p is not None and p.get_srcSystem() == 2:
+                count = p.param_count
+                indices.add(p.param_index)
+        assert count is not None and count > 50 and indices == set(range(count))
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=10)
+    assert json.loads((tmp_path / "sitl" / "summary.json").read_text())["status"] == "interrupted"
+    assert proc.returncode == 0
