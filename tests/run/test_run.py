@@ -50,9 +50,9 @@ def tlog_messages(path: Path) -> list[str]:
     return types
 
 
-def test_two_vehicles_fly_the_same_unmodified_script(tmp_path: Path) -> None:
+def test_three_vehicles_fly_the_same_unmodified_script(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    proc = harness("run", "--vehicles", "2", "--mission", str(TAKEOFF_AND_LAND), "--out", str(out), "--duration", "200")
+    proc = harness("run", "--vehicles", "3", "--mission", str(TAKEOFF_AND_LAND), "--out", str(out), "--duration", "200")
     stdout, stderr = proc.communicate(timeout=240)
     assert proc.returncode == 0, stdout + stderr
     summary = json.loads((out / "summary.json").read_text())
@@ -61,11 +61,11 @@ def test_two_vehicles_fly_the_same_unmodified_script(tmp_path: Path) -> None:
         assert v["mission_exit_code"] == 0
         assert 9.7 <= v["max_altitude_m"] <= 10.5  # set_takeoff_altitude(10) from the script
         assert v["landed"] is True and v["crashed"] is False
-    # each script reached its own vehicle: they started 5 m apart and each landed where it started
+    # each script reached its own vehicle: they started on a 5 m grid and each landed where it started
     finals = [v["final_position_ned_m"] for v in summary["vehicles"]]
-    assert abs(finals[1][1] - finals[0][1] - 5.0) < 1.5
+    assert abs(finals[1][1] - finals[0][1] - 5.0) < 1.5 and abs(finals[2][0] - finals[0][0] + 5.0) < 1.5
     # the recordings open: tlog in pymavlink (what MAVExplorer uses), mcap with a pose stream >= 50 Hz
-    for i in range(2):
+    for i in range(3):
         types = tlog_messages(out / f"vehicle-{i}.tlog")
         assert "HEARTBEAT" in types and "GLOBAL_POSITION_INT" in types and "COMMAND_LONG" in types
     topics = read_topics(out / "world.mcap")
