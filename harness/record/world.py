@@ -17,6 +17,7 @@ import math
 from pathlib import Path
 from typing import Any, BinaryIO
 
+import msgspec
 from mcap.writer import CompressionType, Writer
 
 from harness.simclock.clock import NS_PER_S
@@ -85,6 +86,9 @@ _EVENT_SCHEMA = {
 }
 
 
+_json = msgspec.json.Encoder().encode
+
+
 def _stamp(unix_ns: int) -> dict[str, int]:
     return {"sec": unix_ns // NS_PER_S, "nsec": unix_ns % NS_PER_S}
 
@@ -128,7 +132,7 @@ class WorldRecorder:
     def _put(self, channel: int, t_ns: int, obj: Any) -> None:
         self._seq += 1
         log_time = self.epoch_ns + t_ns
-        self._w.add_message(channel, log_time, json.dumps(obj).encode(), log_time, self._seq)
+        self._w.add_message(channel, log_time, _json(obj), log_time, self._seq)
 
     def vehicle(
         self,
