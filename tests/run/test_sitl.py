@@ -25,8 +25,14 @@ def test_ground_station_sees_every_vehicle_and_its_parameters(tmp_path: Path) ->
     )
     try:
         assert proc.stderr is not None
-        line = proc.stderr.readline()
-        port = int(re.search(r"ground station on udp port (\d+)", line).group(1))  # type: ignore[union-attr]
+        found = None
+        for _ in range(50):  # the ports line comes first unless something warned before it
+            line = proc.stderr.readline()
+            found = re.search(r"ground station on udp port (\d+)", line)
+            if found or not line:
+                break
+        assert found, "harness sitl did not report its MAVLink ports"
+        port = int(found.group(1))
         gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
         seen: dict[int, int] = {}
         end = time.monotonic() + 20
@@ -38,12 +44,15 @@ def test_ground_station_sees_every_vehicle_and_its_parameters(tmp_path: Path) ->
         gcs.mav.param_request_list_send(2, 1)
         indices: set[int] = set()
         count = None
-        end = time.monotonic() + 20
+        end = time.monotonic() + 30
         while (count is None or len(indices) < count) and time.monotonic() < end:
             p = gcs.recv_match(type="PARAM_VALUE", blocking=True, timeout=1)
             if p is not None and p.get_srcSystem() == 2:
                 count = p.param_count
                 indices.add(p.param_index)
+            elif p is None and count is not None:  # like QGroundControl: ask again for what UDP lost
+                for missing in sorted(set(range(count)) - indices):
+                    gcs.mav.param_request_read_send(2, 1, b"", missing)
         assert count is not None and count > 50 and indices == set(range(count))
     finally:
         proc.send_signal(signal.SIGINT)
