@@ -1,0 +1,90 @@
+"""The messaging API for missions (the paper's Python messaging module): radio over the simulated network.
+
+    from harness.net import radio
+    radio.broadcast(b"hello")                  # to every vehicle in range
+    radio.send(2, b"to vehicle 2")
+    msg = radio.receive(timeout=1.0)           # blocks up to 1 s of *sim* time; None on timeout
+    msg = await radio.receive_async(timeout=1.0)
+
+Packets handed over in phase 0 of tick k go to the network simulator in phase 1 of tick k; the script sees
+them at the first phase 0 after they arrive. Only inside ``harness mission`` / ``harness run``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from dataclasses import dataclass
+
+from harness.errors import HarnessError
+from harness.simclock.protocol import BROADCAST
+from harness.simclock.runtime import SimRuntime, current
+
+
+@dataclass(frozen=True)
+class Message:
+    src: int
+    """Sending vehicle."""
+    payload: bytes
+    port: int
+    received_at_s: float
+    """Sim time the packet arrived."""
+    rssi_dbm: float
+
+
+def _rt() -> SimRuntime:
+    rt = current()
+    if rt is None:
+        raise HarnessError("harness.net.radio works only in a mission run by `harness mission` / `harness run`")
+    return rt
+
+
+def vehicle() -> int:
+    """This mission's vehicle index."""
+    return int(os.environ.get("HARNESS_VEHICLE", "0"))
+
+
+def send(to_vehicle: int, payload: bytes, port: int = 0) -> None:
+    if to_vehicle < 0:
+        raise ValueError(f"vehicle must be >= 0 (use broadcast() for everyone), got {to_vehicle}")
+    _rt().queue_packet(to_vehicle, port, bytes(payload))
+
+
+def broadcast(payload: bytes, port: int = 0) -> None:
+    _rt().queue_packet(BROADCAST, port, bytes(payload))
+
+
+def _pop(rt: SimRuntime) -> Message | None:
+    try:
+        d = rt.inbox.popleft()
+    except IndexError:
+        return None
+    return Message(d.src, d.payload, d.port, d.at_ns / 1e9, d.rssi_dbm)
+
+
+def receive(timeout: float | None = None) -> Message | None:
+    """The next message; blocks up to ``timeout`` seconds of sim time (None: until one arrives)."""
+    rt = _rt()
+    deadline = None if timeout is None else rt.now_ns() + round(timeout * 1e9)
+    while True:
+        msg = _pop(rt)
+        if msg is not None:
+            return msg
+        if rt.closed or (deadline is not None and rt.now_ns() >= deadline):
+            return None
+        w = rt.new_waiter(deadline_ns=deadline, inbox=True)
+        w.lock.acquire()
+        rt.finish_wait(w)
+
+
+async def receive_async(timeout: float | None = None) -> Message | None:
+    """Like :func:`receive`, without blocking the event loop (it sleeps a phase at a time, in sim time)."""
+    rt = _rt()
+    deadline = None if timeout is None else rt.now_ns() + round(timeout * 1e9)
+    while True:
+        msg = _pop(rt)
+        if msg is not None:
+            return msg
+        if deadline is not None and rt.now_ns() >= deadline:
+            return None
+        await asyncio.sleep(rt.phase_period_ns / 1e9)

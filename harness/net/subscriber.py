@@ -1,0 +1,118 @@
+"""The network process: a type-1 subscriber that carries phase-0 packets through a network model.
+
+    python -m harness.net.subscriber --address tcp://127.0.0.1:5760 --model builtin --seed 1 --params '{}'
+
+On every BEGIN-TICK-1 it runs the model over the interval with the tick's positions and packets, sends a
+DELIVER for every packet that arrives (broadcasts expanded per receiver), then END-TICK-1. Every delivery
+and drop (with its cause) is appended to ``network-events.jsonl`` in ``$HARNESS_RUN_DIR`` when set.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import IO
+
+from harness.errors import HarnessError, ScenarioError
+from harness.net.model import NetworkModel, StepResult
+from harness.simclock import protocol as p
+from harness.simclock.client import ChannelClient, ChannelClosed
+
+log = logging.getLogger(__name__)
+
+
+def make_model(name: str, seed: int, params: dict[str, object]) -> NetworkModel:
+    if name == "builtin":
+        from harness.net.builtin import BuiltinRadio, RadioConfig
+
+        return BuiltinRadio(RadioConfig.from_params(params), seed)
+    if name == "ns3":
+        raise ScenarioError("network model 'ns3' is not available yet in this build; use 'builtin'")
+    raise ScenarioError(f"network model {name!r} is unknown: use 'builtin', 'ns3' or 'none'")
+
+
+def _write_events(out: IO[str], result: StepResult) -> None:
+    for d in result.deliveries:
+        pk = d.packet
+        out.write(
+            json.dumps(
+                {
+                    "t_s": d.at_ns / 1e9,
+                    "kind": "deliver",
+                    "src": pk.src,
+                    "dst": pk.dst,
+                    "rssi_dbm": round(d.rssi_dbm, 1),
+                }
+            )
+            + "\n"
+        )
+    for x in result.drops:
+        out.write(
+            json.dumps({"t_s": x.t_ns / 1e9, "kind": "drop", "src": x.packet.src, "dst": x.dst, "cause": x.cause.value})
+            + "\n"
+        )
+
+
+def serve(client: ChannelClient, model: NetworkModel, events: IO[str] | None = None) -> int:
+    """Answer phase 1 until the run ends; returns the number of intervals simulated."""
+    steps = 0
+    while True:
+        try:
+            msgs = client.recv()
+        except ChannelClosed:
+            return steps
+        for msg in msgs:
+            if isinstance(msg, p.BeginTick1):
+                positions = {vp.vehicle: vp.ned_m for vp in msg.positions}
+                result = model.step(msg.t_ns, msg.period_ns, positions, msg.packets)
+                out: list[p.Message] = [p.Deliver(d.at_ns, d.packet, d.rssi_dbm) for d in result.deliveries]
+                out.append(p.EndTick1(msg.t_ns))
+                client.send_many(out)
+                if events is not None:
+                    _write_events(events, result)
+                steps += 1
+            elif isinstance(msg, p.Bye):
+                return steps
+            elif isinstance(msg, p.Error):
+                raise HarnessError(f"the channel ended the run: {msg.message}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m harness.net.subscriber", description=__doc__)
+    ap.add_argument("--address", required=True)
+    ap.add_argument("--model", default="builtin")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--params", default="{}", help="JSON object of model parameters")
+    ap.add_argument("--name", default="network")
+    a = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        params = json.loads(a.params)
+        if not isinstance(params, dict):
+            raise ScenarioError(f"--params must be a JSON object, got {a.params!r}")
+        model = make_model(a.model, a.seed, params)
+        client = ChannelClient.connect(a.address, p.PeerKind.TYPE1, a.name)
+    except (HarnessError, json.JSONDecodeError) as exc:
+        print(f"network: {exc}", file=sys.stderr)
+        return 2
+    run_dir = os.environ.get("HARNESS_RUN_DIR")
+    events = (Path(run_dir) / "network-events.jsonl").open("a") if run_dir else None
+    try:
+        serve(client, model, events)
+    except HarnessError as exc:
+        print(f"network: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        client.close()
+        if events is not None:
+            events.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
