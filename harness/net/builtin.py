@@ -127,6 +127,7 @@ class BuiltinRadio:
         drops: list[Drop] = []
         new: list[_Tx] = []
         pos = dict(positions)
+        self.recent = [tx for tx in self.recent if tx.end_ns > t_ns]  # older ones overlap nothing new
         for pk in sorted(packets, key=lambda p: (p.t_ns, p.src, p.seq)):
             node = self.nodes.setdefault(pk.src, _Node())
             now = max(t_ns, pk.t_ns)
@@ -141,9 +142,12 @@ class BuiltinRadio:
             node.busy_until_ns = end
             node.queued.append(start)
             new.append(_Tx(pk.src, start, end, pk, pos))
-        self.recent = [tx for tx in self.recent if tx.end_ns > t_ns - 1_000_000_000] + new
+        self.recent += new
         for tx in new:
             src_pos = tx.positions.get(tx.src)
+            overlapping = [
+                o for o in self.recent if o is not tx and o.end_ns > tx.start_ns and o.start_ns < tx.end_ns
+            ]
             receivers = (
                 [v for v in sorted(tx.positions) if v != tx.src] if tx.packet.dst == BROADCAST else [tx.packet.dst]
             )
@@ -159,7 +163,7 @@ class BuiltinRadio:
                     drops.append(self._drop(t_ns, tx.packet, dst, DropCause.RANGE))
                     continue
                 rx = cfg.mean_rx_dbm(d) - shadow
-                if self._collides(tx, dst, rx):
+                if self._collides(tx, overlapping, dst, rx):
                     drops.append(self._drop(t_ns, tx.packet, dst, DropCause.COLLISION))
                     continue
                 if draw < cfg.per(rx - cfg.noise_floor_dbm, len(tx.packet.payload)):
@@ -193,11 +197,9 @@ class BuiltinRadio:
                     moved = True
         return start
 
-    def _collides(self, tx: _Tx, dst: int, rx_dbm: float) -> bool:
+    def _collides(self, tx: _Tx, overlapping: list[_Tx], dst: int, rx_dbm: float) -> bool:
         dst_pos = tx.positions[dst]
-        for other in self.recent:
-            if other is tx or other.end_ns <= tx.start_ns or other.start_ns >= tx.end_ns:
-                continue
+        for other in overlapping:
             if other.src == dst:
                 return True  # the receiver was transmitting (half duplex)
             o_pos = other.positions.get(other.src)
