@@ -4,7 +4,8 @@ Reads ``world.mcap`` (and ``summary.json`` when present) and writes into DIR:
 
 - ``trajectories.png`` — top-down tracks of every vehicle (east right, north up), start and end marked;
 - ``altitude.png`` — altitude above the origin over sim time;
-- ``link_quality.png`` — delivered packets per second between vehicle pairs, when the run had a network;
+- ``link_quality.png`` — delivered packets per second between vehicle pairs (from ``network-events.jsonl``),
+  when the run had a network;
 - ``real_time_factor.png`` — sim time per wall time over the run;
 - ``index.html`` — all of them on one page with the summary.
 """
@@ -70,12 +71,13 @@ def make_plots(run_dir: Path) -> list[Path]:
         ax.legend()
     written.append(_save(fig, run_dir / "altitude.png"))
 
-    events = topics.get("/sim/events", [])
     deliveries: dict[tuple[int, int], dict[int, int]] = defaultdict(lambda: defaultdict(int))
-    for ev in events:
-        if ev.get("kind") == "deliver":
-            d = ev["detail"]
-            deliveries[(d["src"], d["dst"])][int(ev["t_s"])] += 1
+    net_log = run_dir / "network-events.jsonl"
+    if net_log.is_file():
+        for text in net_log.read_text().splitlines():
+            ev = json.loads(text)
+            if ev.get("kind") == "deliver":
+                deliveries[(ev["src"], ev["dst"])][int(ev["t_s"])] += 1
     if deliveries:
         fig, ax = plt.subplots(figsize=(9, 4))
         for (src, dst), per_s in sorted(deliveries.items()):
