@@ -145,9 +145,7 @@ class BuiltinRadio:
         self.recent += new
         for tx in new:
             src_pos = tx.positions.get(tx.src)
-            overlapping = [
-                o for o in self.recent if o is not tx and o.end_ns > tx.start_ns and o.start_ns < tx.end_ns
-            ]
+            overlapping = [o for o in self.recent if o is not tx and o.end_ns > tx.start_ns and o.start_ns < tx.end_ns]
             receivers = (
                 [v for v in sorted(tx.positions) if v != tx.src] if tx.packet.dst == BROADCAST else [tx.packet.dst]
             )
