@@ -32,7 +32,7 @@ def setup(extras: str) -> None:
         sys.exit(f"uav-harness needs Python >= 3.11, this is {sys.version.split()[0]}")
     if not PY.exists():
         venv.EnvBuilder(with_pip=True).create(VENV)
-    stamp = VENV / f".installed-{extras or 'base'}"
+    stamp = VENV / f".installed-{extras.replace(',', '-') or 'base'}"
     digest = hashlib.sha256((ROOT / "pyproject.toml").read_bytes()).hexdigest()
     if stamp.exists() and stamp.read_text() == digest:
         return
@@ -48,7 +48,7 @@ def demo(args: list[str]) -> int:
 
 
 def test(args: list[str]) -> int:
-    setup("dev")
+    setup("dev,ns3")  # CI tests the ns-3 network model too
     if sh(BIN / "ruff", "check", "harness", "tests", "benchmarks", "missions", "dev.py", check=False):
         return 1
     if sh(BIN / "ruff", "format", "--check", "harness", "tests", "benchmarks", "missions", "dev.py", check=False):

@@ -32,7 +32,9 @@ def make_model(name: str, seed: int, params: dict[str, object]) -> NetworkModel:
 
         return BuiltinRadio(RadioConfig.from_params(params), seed)
     if name == "ns3":
-        raise ScenarioError("network model 'ns3' is not available yet in this build; use 'builtin'")
+        from harness.net.ns3model import Ns3Config, Ns3Radio
+
+        return Ns3Radio(Ns3Config.from_params(params), seed)
     raise ScenarioError(f"network model {name!r} is unknown: use 'builtin', 'ns3' or 'none'")
 
 
