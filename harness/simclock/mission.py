@@ -171,6 +171,9 @@ def run_mission(spec: MissionSpec) -> int:
     os.environ.setdefault("HARNESS_VEHICLE", str(spec.vehicle))
     os.environ.setdefault("HARNESS_SYSID", str(spec.vehicle + 1))
     patch.install(rt)
+    from harness.net import udp
+
+    udp.install(rt)  # UDP to 10.42.0.x goes through the simulated network
     port = int(os.environ.get("HARNESS_MAVLINK_PORT", str(mavsdk_compat.STANDARD_PORT + max(spec.vehicle, 0))))
     api = mavsdk_compat.install(spec.script, port, os.environ.get("HARNESS_MAVSDK_API") or None)
     if api:

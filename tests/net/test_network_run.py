@@ -53,3 +53,17 @@ def test_out_of_range_nothing_arrives(tmp_path: Path) -> None:
     assert json.loads(run.mission_output(0)) == [] and json.loads(run.mission_output(1)) == []
     events = [json.loads(line) for line in (out / "network-events.jsonl").read_text().splitlines()]
     assert events and all(e["kind"] == "drop" and e["cause"] == "range" for e in events)
+
+
+def test_plain_udp_sockets_on_radio_addresses(harness_run: Callable[..., RunRecord]) -> None:
+    """Existing swarm code: socket.socket, bind 0.0.0.0:5005 in every vehicle, sendto 10.42.0.255, recvfrom."""
+    run = harness_run(
+        mission=Path(__file__).parent / "scripts" / "udp_swarm.py", vehicles=3, extra=["--network", "builtin"]
+    )
+    assert run.ok, run.message
+    for v in range(3):
+        result = json.loads(run.mission_output(v))
+        heard = result["heard"]
+        assert len(heard) == 2 * 5
+        assert {h["addr"] for h in heard} == {f"10.42.0.{u + 1}" for u in range(3) if u != v}
+        assert all(h["addr"] == f"10.42.0.{h['from'] + 1}" for h in heard)
