@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 from harness.errors import HarnessError
 from harness.simclock.protocol import BROADCAST
-from harness.simclock.runtime import SimRuntime, current
+from harness.simclock.runtime import Delivery, SimRuntime, current
 
 
 @dataclass(frozen=True)
@@ -54,27 +54,13 @@ def broadcast(payload: bytes, port: int = 0) -> None:
     _rt().queue_packet(BROADCAST, port, bytes(payload))
 
 
-def _pop(rt: SimRuntime) -> Message | None:
-    try:
-        d = rt.inbox.popleft()
-    except IndexError:
-        return None
-    return Message(d.src, d.payload, d.port, d.at_ns / 1e9, d.rssi_dbm)
+def _message(d: Delivery | None) -> Message | None:
+    return None if d is None else Message(d.src, d.payload, d.port, d.at_ns / 1e9, d.rssi_dbm)
 
 
 def receive(timeout: float | None = None) -> Message | None:
     """The next message; blocks up to ``timeout`` seconds of sim time (None: until one arrives)."""
-    rt = _rt()
-    deadline = None if timeout is None else rt.now_ns() + round(timeout * 1e9)
-    while True:
-        msg = _pop(rt)
-        if msg is not None:
-            return msg
-        if rt.closed or (deadline is not None and rt.now_ns() >= deadline):
-            return None
-        w = rt.new_waiter(deadline_ns=deadline, inbox=True)
-        w.lock.acquire()
-        rt.finish_wait(w)
+    return _message(_rt().take_delivery(None, timeout))
 
 
 async def receive_async(timeout: float | None = None) -> Message | None:
@@ -82,9 +68,7 @@ async def receive_async(timeout: float | None = None) -> Message | None:
     rt = _rt()
     deadline = None if timeout is None else rt.now_ns() + round(timeout * 1e9)
     while True:
-        msg = _pop(rt)
-        if msg is not None:
+        msg = _message(rt.take_delivery(None, 0.0))
+        if msg is not None or rt.closed or (deadline is not None and rt.now_ns() >= deadline):
             return msg
-        if deadline is not None and rt.now_ns() >= deadline:
-            return None
         await asyncio.sleep(rt.phase_period_ns / 1e9)

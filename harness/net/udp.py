@@ -18,7 +18,7 @@ import socket as _socket
 from typing import Any
 
 from harness.simclock.protocol import BROADCAST
-from harness.simclock.runtime import Delivery, SimRuntime
+from harness.simclock.runtime import SimRuntime
 
 RADIO_NET = ipaddress.ip_network("10.42.0.0/24")
 BROADCAST_ADDR = "10.42.0.255"
@@ -76,34 +76,15 @@ class RadioSocket(_original_socket):
     def recvfrom(self, bufsize: int, flags: int = 0) -> tuple[bytes, Any]:
         if self._radio_port is None or _rt is None:
             return super().recvfrom(bufsize, flags)
-        d = _wait_for(_rt, self._radio_port, self._sim_timeout)
+        d = _rt.take_delivery(self._radio_port, self._sim_timeout)
+        if d is None:
+            raise TimeoutError("timed out")  # socket.timeout is TimeoutError since Python 3.10
         return d.payload[:bufsize], (radio_address(d.src), d.port)
 
     def recv(self, bufsize: int, flags: int = 0) -> bytes:
         if self._radio_port is None or _rt is None:
             return super().recv(bufsize, flags)
         return self.recvfrom(bufsize, flags)[0]
-
-
-def _take(rt: SimRuntime, port: int) -> Delivery | None:
-    for d in list(rt.inbox):
-        if d.port == port:
-            rt.inbox.remove(d)
-            return d
-    return None
-
-
-def _wait_for(rt: SimRuntime, port: int, timeout: float | None) -> Delivery:
-    deadline = None if timeout is None else rt.now_ns() + round(timeout * 1e9)
-    while True:
-        d = _take(rt, port)
-        if d is not None:
-            return d
-        if rt.closed or (deadline is not None and rt.now_ns() >= deadline):
-            raise TimeoutError("timed out")  # socket.timeout is TimeoutError since Python 3.10
-        w = rt.new_waiter(deadline_ns=deadline, inbox=True)
-        w.lock.acquire()
-        rt.finish_wait(w)
 
 
 def install(rt: SimRuntime) -> None:

@@ -282,6 +282,21 @@ class SimRuntime:
         with self._mu:
             self._done_threads.discard(ident if ident is not None else _thread.get_ident())
 
+    def take_delivery(self, port: int | None = None, timeout_s: float | None = None) -> Delivery | None:
+        """The oldest delivered packet (for ``port``, or any), waiting up to ``timeout_s`` of sim time for one
+        (None: until one comes); None on timeout or when the run is over. Script threads only."""
+        deadline = None if timeout_s is None else self._now_ns + round(timeout_s * NS_PER_S)
+        while True:
+            for d in list(self.inbox):  # deliveries only arrive between phases, never while this runs
+                if port is None or d.port == port:
+                    self.inbox.remove(d)
+                    return d
+            if self.closed or (deadline is not None and self._now_ns >= deadline):
+                return None
+            w = self.new_waiter(deadline_ns=deadline, inbox=True)
+            w.lock.acquire()
+            self.finish_wait(w)
+
     def queue_packet(self, dst: int, port: int, payload: bytes) -> None:
         """ENQUEUE a packet for the network; sent before this phase's END-TICK-0."""
         with self._mu:
