@@ -246,15 +246,15 @@ class Launcher:
         t_ns = 0
         ports = allocate(n, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
-        if plan.progress is not None:
-            plan.progress(
-                f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i sends to udp port "
-                f"{self.api_port_base}+i (a script's udpin://0.0.0.0:{self.api_port_base} reaches vehicle 0)"
-            )
         local: list[Any] = []
         with Children(plan.out) as sup:
             try:
                 ports.release()
+                if plan.progress is not None:  # only now: a ground station may bind the GCS port once it reads this
+                    plan.progress(
+                        f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i sends to udp port "
+                        f"{self.api_port_base}+i (a script's udpin://0.0.0.0:{self.api_port_base} reaches vehicle 0)"
+                    )
                 if plan.autopilots == "in-process":
                     local = self._local_autopilots(channel)
                 self._start_children(sup, channel.address)

@@ -109,6 +109,7 @@ class _Peer:
     vehicle: int = -1
     vehicles: set[int] = field(default_factory=set)
     mission_vehicles: set[int] = field(default_factory=set)
+    members: int = 0  # a child channel's admitted subscribers (its own Announce)
     decoder: p.FrameDecoder = field(default_factory=p.FrameDecoder)
     out: bytearray = field(default_factory=bytearray)
     nonce: bytes = b""
@@ -486,7 +487,10 @@ class Channel:
                 missions.add(peer.vehicle)
             if peer.kind == p.PeerKind.CHILD:
                 missions |= peer.mission_vehicles
-        self._send(self._up, p.Announce(tuple(sorted(held)), tuple(sorted(missions))))
+        self._send(self._up, p.Announce(tuple(sorted(held)), tuple(sorted(missions)), self._tree_size()))
+
+    def _tree_size(self) -> int:
+        return sum(1 + (peer.members if peer.kind == p.PeerKind.CHILD else 0) for peer in self._active())
 
     def _active(self, *kinds: p.PeerKind) -> Iterable[_Peer]:
         """Admitted peers below this channel, of ``kinds`` (all kinds if none); cached per membership."""
@@ -519,6 +523,7 @@ class Channel:
         elif isinstance(msg, p.Announce):
             peer.vehicles = set(msg.vehicles)
             peer.mission_vehicles = set(msg.mission_vehicles)
+            peer.members = msg.members
             self._members = None
             self._announce_up()
             self._progress()
@@ -890,6 +895,14 @@ class Channel:
             for peer in list(self._peers.values())
             if peer.kind is not None and peer.admitted and not peer.upstream
         ]
+
+    def tree_size(self) -> int:
+        """Admitted subscribers in the whole tree below this channel: its own, and what each child announced."""
+        return sum(
+            1 + (peer.members if peer.kind == p.PeerKind.CHILD else 0)
+            for peer in list(self._peers.values())
+            if peer.kind is not None and peer.admitted and not peer.upstream and not peer.closed
+        )
 
     def raise_if_failed(self) -> None:
         if self.failure:

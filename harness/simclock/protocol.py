@@ -134,10 +134,11 @@ class Welcome(_Msg, tag="WELCOME", frozen=True):
 
 
 class Announce(_Msg, tag="ANNOUNCE", frozen=True):
-    """CHILD/AUTOPILOT -> channel: the set of vehicles it holds has changed (a late autopilot joined)."""
+    """CHILD/AUTOPILOT -> channel: what it holds has changed (a late autopilot or subscriber joined or left)."""
 
     vehicles: tuple[int, ...]
     mission_vehicles: tuple[int, ...] = ()
+    members: int = 0  # admitted subscribers below the sender, counted through its own children
 
 
 # --- the tick ----------------------------------------------------------------------------------

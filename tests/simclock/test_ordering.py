@@ -104,7 +104,8 @@ def test_ordering_tree_of_channels(procs: Procs) -> None:
             procs.driver("type1", addr, "--work-us", "300", name=f"net{i}")[1]
             for i, addr in enumerate([root.address, child_a])
         ]
-        wait_until(lambda: len(root.subscribers()) == 5, what="root subscribers")  # 2 children + ap + m0 + net0
+        # 2 children + ap + m0 + net0 at the root; ap + m1 + net1 below child-a; ap + m2 + m3 below child-b
+        wait_until(lambda: root.tree_size() == 5 + 3 + 3, what="every subscriber of the tree")
         stats = run_fake_physics(root.address, 3, TICKS)
         for p in procs.procs:
             p.wait(10)
