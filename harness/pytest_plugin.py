@@ -19,7 +19,7 @@ import math
 import subprocess
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -36,6 +36,20 @@ class VehicleRecord:
     summary: dict[str, Any]
     track: list[dict[str, Any]]
     """``/vehicle/<i>/state`` messages of world.mcap: t_s, pos_ned_m, vel_ned_m_s, on_ground, crashed."""
+    poses: list[dict[str, Any]] = field(default_factory=list)
+    """``/vehicle/<i>/pose`` messages (foxglove.PoseInFrame, NED), one per state message."""
+
+    def attitudes_deg(self) -> list[tuple[float, float, float, float]]:
+        """(t_s, roll, pitch, yaw) in degrees, yaw in (-180, 180], from the true orientation."""
+        out = []
+        for state, pose in zip(self.track, self.poses, strict=False):
+            q = pose["pose"]["orientation"]
+            w, x, y, z = q["w"], q["x"], q["y"], q["z"]
+            roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+            pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+            yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+            out.append((state["t_s"], math.degrees(roll), math.degrees(pitch), math.degrees(yaw)))
+        return out
 
     @property
     def max_altitude_m(self) -> float:
@@ -101,7 +115,10 @@ class RunRecord:
         return f"{self.summary.get('status')}: {self.summary.get('message')}\n{self.stderr[-2000:]}"
 
     def vehicle(self, i: int) -> VehicleRecord:
-        return VehicleRecord(self.summary["vehicles"][i], self.topics.get(f"/vehicle/{i}/state", []))
+        topics = self.topics
+        return VehicleRecord(
+            self.summary["vehicles"][i], topics.get(f"/vehicle/{i}/state", []), topics.get(f"/vehicle/{i}/pose", [])
+        )
 
     def mission_output(self, i: int) -> str:
         return (self.out / f"mission-{i}.stdout").read_text()

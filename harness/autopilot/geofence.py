@@ -71,14 +71,20 @@ class Geofence:
             return ""
         if self._shapes is None:
             self._shapes = self._build(to_local)
+        # PX4's rule: the allowed area is the union of the inclusion fences (if there are any) minus every
+        # exclusion fence; a vehicle inside one of two overlapping inclusion areas is not in breach
         x, y = pos[0], pos[1]
+        had_inclusion = in_inclusion = False
         for inclusion, pts, r in self._shapes:
             if r < 0:
                 inside = _inside_polygon(x, y, pts)
             else:
                 inside = math.hypot(x - pts[0][0], y - pts[0][1]) <= r
-            if inclusion and not inside:
-                return "outside an inclusion fence"
-            if not inclusion and inside:
+            if inclusion:
+                had_inclusion = True
+                in_inclusion = in_inclusion or inside
+            elif inside:
                 return "inside an exclusion fence"
+        if had_inclusion and not in_inclusion:
+            return "outside every inclusion fence"
         return ""

@@ -34,6 +34,20 @@ def test_polygon_and_circle_fences() -> None:
     assert "exclusion" in fence.breach((22.0, 19.0, -5.0), home, _to_local)
 
 
+def test_inclusion_fences_are_a_union_as_in_px4() -> None:
+    """Inside one of two inclusion areas is allowed; outside all of them is a breach."""
+    fence = Geofence(Params())
+    square = [(-50.0, -50.0), (-50.0, 50.0), (50.0, 50.0), (50.0, -50.0)]
+    items = [_vertex(i, 5001, n, e) for i, (n, e) in enumerate(square)]
+    lat, lon, _ = REF.to_geo(200.0, 0.0, 0.0)
+    items.append(MissionItem(4, MavFrame.GLOBAL_INT, 5003, param1=30.0, x=lat, y=lon))  # inclusion circle far away
+    fence.set_items(items)
+    home = (0.0, 0.0, 0.0)
+    assert fence.breach((10.0, -30.0, -5.0), home, _to_local) == ""  # in the square, not in the circle
+    assert fence.breach((210.0, 5.0, -5.0), home, _to_local) == ""  # in the circle, not in the square
+    assert "outside every inclusion fence" in fence.breach((120.0, 0.0, -5.0), home, _to_local)
+
+
 def test_distance_and_height_limits() -> None:
     params = Params(overrides={"GF_MAX_HOR_DIST": 100.0, "GF_MAX_VER_DIST": 30.0})
     fence = Geofence(params)

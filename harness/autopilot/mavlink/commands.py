@@ -134,8 +134,13 @@ class CommandService:
     def _mode_cmd(result: CommandResult) -> CommandOutcome:
         return CommandOutcome(result, mode_or_arming_changed=result.ok)
 
-    def _geo(self, cmd: CommandIn) -> tuple[float | None, float | None, float | None] | str:
-        """(lat, lon, alt AMSL) of params 5-7 (None = unset), or a reason they are invalid."""
+    def _geo(
+        self, cmd: CommandIn, honour_relative_frame: bool = True
+    ) -> tuple[float | None, float | None, float | None] | str:
+        """(lat, lon, alt AMSL) of params 5-7 (None = unset), or a reason they are invalid.
+
+        ``honour_relative_frame=False``: the altitude is AMSL whatever the COMMAND_INT frame says (DO_ORBIT).
+        """
         p = cmd.params
         if cmd.frame is None:
             lat = p[4] if is_set(p[4]) else None
@@ -153,7 +158,8 @@ class CommandService:
             return f"longitude {lon} outside [-180, 180]"
         if cmd.frame is not None and cmd.frame not in _GLOBAL_FRAMES:
             return f"frame {cmd.frame} not supported (use GLOBAL_INT or GLOBAL_RELATIVE_ALT_INT)"
-        if alt is not None and cmd.frame in (MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_RELATIVE_ALT_INT):
+        relative = cmd.frame in (MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_RELATIVE_ALT_INT)
+        if alt is not None and relative and honour_relative_frame:
             home = self.api.state().home
             if home is None:
                 return "altitude relative to home given but there is no home position yet"
@@ -254,7 +260,9 @@ class CommandService:
             velocity = 1.0  # PX4's default orbit speed
         if not math.isfinite(velocity):
             return CommandOutcome(CommandResult.denied(f"Orbit denied: velocity {velocity} is not finite"))
-        geo = self._geo(cmd)
+        # MAVSDK's do_orbit(absolute_altitude_m) puts an AMSL altitude into a GLOBAL_RELATIVE_ALT COMMAND_INT,
+        # and PX4's orbit takes param 7 as AMSL whatever the frame: so do we (else the vehicle climbs away)
+        geo = self._geo(cmd, honour_relative_frame=False)
         if isinstance(geo, str):
             return CommandOutcome(CommandResult.denied(f"Orbit denied: {geo}"))
         return self._mode_cmd(self.api.orbit(radius, velocity, geo[0], geo[1], geo[2]))
