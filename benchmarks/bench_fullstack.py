@@ -1,5 +1,6 @@
-"""Full-stack benchmark: real-time factor of `harness run` with physics, autopilots and one MAVSDK
-mission process per vehicle (`missions/hover.py`: take off, hover, land), at the shipped default rates
+"""Full-stack benchmark: real-time factor of `harness run` with physics, autopilots, the built-in network
+and one MAVSDK mission process per vehicle (`missions/hover.py`: take off, hover 30 s, land, broadcasting
+its position over the radio at 10 Hz and reading what the others send), at the shipped default rates
 (physics 1 kHz, control tick 250 Hz, phases 0/1 every 5th tick = 50 Hz).
 
     .venv/bin/python benchmarks/bench_fullstack.py            # 1, 10 and 50 vehicles
@@ -19,6 +20,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = {1: 30.0, 10: 3.0, 50: 0.5}
+BEACON_HZ = 10.0
 
 
 def run(vehicles: int, hover_s: float) -> dict[str, float]:
@@ -30,12 +32,15 @@ def run(vehicles: int, hover_s: float) -> dict[str, float]:
         "run",
         "--vehicles",
         str(vehicles),
+        "--network",
+        "builtin",
         "--mission",
         str(ROOT / "missions" / "hover.py"),
         "--out",
         str(out),
         "--",
         str(hover_s),
+        str(BEACON_HZ),
     ]
     start = time.monotonic()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
@@ -54,8 +59,10 @@ def run(vehicles: int, hover_s: float) -> dict[str, float]:
 
 def main() -> int:
     sizes = [int(a) for a in sys.argv[1:]] or [1, 10, 50]
-    print("full stack: JSBSim physics + autopilots + MAVLink + 1 MAVSDK (gRPC API) mission per vehicle, no network")
-    print("rates: physics 1000 Hz, tick 250 Hz, phase 0/1 at 50 Hz; mission: takeoff, hover 30 s, land")
+    print(
+        "full stack: JSBSim physics + autopilots + MAVLink + built-in network + 1 MAVSDK (gRPC API) mission per vehicle"
+    )
+    print("rates: physics 1000 Hz, tick 250 Hz, phase 0/1 at 50 Hz; mission: takeoff, hover 30 s, land; 10 Hz beacons")
     print(f"{'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'target':>7} {'ok':>3}")
     for n in sizes:
         r = run(n, 30.0)

@@ -14,6 +14,7 @@ import contextlib
 import random
 import socket
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from harness.errors import SimulationError
 
@@ -47,16 +48,37 @@ def _hold(ports: list[int]) -> list[socket.socket] | None:
     return held
 
 
+def ephemeral_range() -> tuple[int, int]:
+    """The kernel's range for automatically assigned ports (Linux: /proc; elsewhere the IANA range)."""
+    try:
+        lo, hi = (int(x) for x in Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
+        return lo, hi
+    except (OSError, ValueError):
+        return 49152, 65535
+
+
+def _free_span(vehicles: int) -> tuple[int, int]:
+    """Where to look for a block: below the ephemeral range. Every socket bound to port 0 (the autopilots'
+    senders, mavsdk_server's gRPC port, other programs) gets a port from that range, so a block inside it
+    can be taken between our release and the mission's bind (seen with 50 vehicles: "Bind error")."""
+    lo, _ = ephemeral_range()
+    top = min(lo, 65536) - vehicles - 2
+    if top - 10000 < 1000:  # an unusually wide ephemeral range: fall back to the old span
+        return 20000, 60000 - vehicles - 2
+    return 10000, top
+
+
 def allocate(vehicles: int, api_base: int = 14540, gcs: int = 14550, rng: random.Random | None = None) -> PortBlock:
-    """The standard ports when free, else a free block in 20000-60000."""
+    """The standard ports when free, else a free block below the kernel's ephemeral port range."""
     standard = [api_base + i for i in range(vehicles)] + ([gcs] if gcs else [])
     if len(set(standard)) == len(standard):
         held = _hold(standard)
         if held is not None:
             return PortBlock(api_base, gcs, held)
     rng = rng or random.Random()
+    span_lo, span_hi = _free_span(vehicles)
     for _ in range(200):
-        base = rng.randrange(20000, 60000 - vehicles - 2)
+        base = rng.randrange(span_lo, span_hi)
         ports = [base + i for i in range(vehicles)] + [base + vehicles]
         held = _hold(ports)
         if held is not None:
