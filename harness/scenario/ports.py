@@ -5,7 +5,8 @@ GCS port. The standard ports (14540+i, 14550: what PX4 SITL users and QGroundCon
 when they are all free; otherwise a free block is chosen. A block is *held* (sockets bound with
 SO_REUSEADDR off) until the run's processes bind it themselves, which closes the race between two
 ``harness run`` started at the same moment as far as one machine allows: the second one sees the
-block taken and picks another.
+block taken and picks another. Fallback blocks lie below the kernel's ephemeral port range, so no
+socket bound to port 0 (ours or anyone's) can take one of them in the moment between release and bind.
 """
 
 from __future__ import annotations
