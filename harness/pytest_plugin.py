@@ -26,6 +26,7 @@ from typing import Any
 
 import pytest
 
+from harness.autopilot.mathutil import quat_to_euler
 from harness.record.world import read_topics
 
 
@@ -44,10 +45,7 @@ class VehicleRecord:
         out = []
         for state, pose in zip(self.track, self.poses, strict=False):
             q = pose["pose"]["orientation"]
-            w, x, y, z = q["w"], q["x"], q["y"], q["z"]
-            roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-            pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-            yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+            roll, pitch, yaw = quat_to_euler((q["w"], q["x"], q["y"], q["z"]))
             out.append((state["t_s"], math.degrees(roll), math.degrees(pitch), math.degrees(yaw)))
         return out
 

@@ -487,10 +487,7 @@ class Channel:
                 missions.add(peer.vehicle)
             if peer.kind == p.PeerKind.CHILD:
                 missions |= peer.mission_vehicles
-        self._send(self._up, p.Announce(tuple(sorted(held)), tuple(sorted(missions)), self._tree_size()))
-
-    def _tree_size(self) -> int:
-        return sum(1 + (peer.members if peer.kind == p.PeerKind.CHILD else 0) for peer in self._active())
+        self._send(self._up, p.Announce(tuple(sorted(held)), tuple(sorted(missions)), self.tree_size()))
 
     def _active(self, *kinds: p.PeerKind) -> Iterable[_Peer]:
         """Admitted peers below this channel, of ``kinds`` (all kinds if none); cached per membership."""

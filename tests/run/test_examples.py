@@ -12,25 +12,16 @@ import itertools
 import math
 import re
 import statistics
-from collections.abc import Callable
-from pathlib import Path
 
 import pytest
 
 from harness.autopilot.mavlink.version import FLIGHT_SW_VERSION
 from harness.autopilot.params import PARAM_DEFS, ParamType
-from harness.pytest_plugin import RunRecord, VehicleRecord
+from harness.pytest_plugin import VehicleRecord
+
+from .flights import Fly, flown
 
 pytestmark = pytest.mark.sim
-MISSIONS = Path(__file__).resolve().parents[2] / "missions"
-Fly = Callable[..., RunRecord]
-
-
-def flown(harness_run: Fly, script: str) -> RunRecord:
-    run = harness_run(mission=MISSIONS / script, vehicles=1, duration_s=600)
-    assert run.ok, run.message
-    assert run.vehicle(0).mission_exit_code == 0
-    return run
 
 
 def first_time_near(v: VehicleRecord, n: float, e: float, within_m: float) -> float | None:

@@ -21,6 +21,8 @@ import pytest
 
 from harness.autopilot.params import PARAM_DEFS
 
+from .flights import start_sitl
+
 pytestmark = pytest.mark.sim
 
 
@@ -72,23 +74,10 @@ class Console:
 def test_mavproxy_sees_the_vehicle_downloads_parameters_and_follows_modes(tmp_path: Path) -> None:
     mavproxy = shutil.which("mavproxy.py", path=str(Path(sys.executable).parent))
     assert mavproxy, "MAVProxy is part of the test setup (dev.py installs it); mavproxy.py not found"
-    sitl = subprocess.Popen(
-        [sys.executable, "-m", "harness.cli", "sitl", "--vehicles", "1", "--out", str(tmp_path / "sitl")],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    sitl, port = start_sitl(1, tmp_path / "sitl", stdout=subprocess.DEVNULL)
     proxy: subprocess.Popen[str] | None = None
     try:
         assert sitl.stderr is not None
-        port = None
-        for _ in range(50):
-            line = sitl.stderr.readline()
-            found = re.search(r"ground station on udp port (\d+)", line)
-            if found or not line:
-                port = int(found.group(1)) if found else None
-                break
-        assert port, "harness sitl did not report its GCS port"
         threading.Thread(target=sitl.stderr.read, daemon=True).start()  # keep its pipe drained
         proxy = subprocess.Popen(
             [mavproxy, f"--master=udpin:127.0.0.1:{port}", "--source-system=255", "--nowait"],

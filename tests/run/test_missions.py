@@ -4,27 +4,16 @@ vehicle did what the script asked, checked in the recording."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from pathlib import Path
 
 import pytest
 
-from harness.pytest_plugin import RunRecord
+from .flights import Fly, flown
 
 pytestmark = pytest.mark.sim
-MISSIONS = Path(__file__).resolve().parents[2] / "missions"
-Fly = Callable[..., RunRecord]
 
 
 def closest(track: list[dict[str, object]], n: float, e: float) -> float:
     return min(math.hypot(m["pos_ned_m"][0] - n, m["pos_ned_m"][1] - e) for m in track)  # type: ignore[index]
-
-
-def flown(harness_run: Fly, script: str, *args: str) -> RunRecord:
-    run = harness_run(mission=MISSIONS / script, vehicles=1, duration_s=600, args=list(args))
-    assert run.ok, run.message
-    assert run.vehicle(0).mission_exit_code == 0
-    return run
 
 
 def test_goto_reaches_the_point_and_returns(harness_run: Fly) -> None:

@@ -3,36 +3,21 @@
 from __future__ import annotations
 
 import json
-import re
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
 
+from .flights import start_sitl
+
 pytestmark = pytest.mark.sim
 
 
 def test_ground_station_sees_every_vehicle_and_its_parameters(tmp_path: Path) -> None:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "harness.cli", "sitl", "--vehicles", "2", "--out", str(tmp_path / "sitl")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc, port = start_sitl(2, tmp_path / "sitl")
     try:
-        assert proc.stderr is not None
-        found = None
-        for _ in range(50):  # the ports line comes first unless something warned before it
-            line = proc.stderr.readline()
-            found = re.search(r"ground station on udp port (\d+)", line)
-            if found or not line:
-                break
-        assert found, "harness sitl did not report its MAVLink ports"
-        port = int(found.group(1))
         gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
         seen: dict[int, int] = {}
         end = time.monotonic() + 20

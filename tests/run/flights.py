@@ -1,0 +1,43 @@
+"""Helpers shared by the end-to-end tests: fly one of our missions, start `harness sitl` for a ground station."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from harness.pytest_plugin import RunRecord
+
+MISSIONS = Path(__file__).resolve().parents[2] / "missions"
+Fly = Callable[..., RunRecord]
+
+
+def flown(harness_run: Fly, script: str, *args: str) -> RunRecord:
+    """Fly ``missions/<script>`` on one vehicle; it must exit 0 and the run must succeed."""
+    run = harness_run(mission=MISSIONS / script, vehicles=1, duration_s=600, args=list(args))
+    assert run.ok, run.message
+    assert run.vehicle(0).mission_exit_code == 0
+    return run
+
+
+def start_sitl(vehicles: int, out: Path, stdout: int | None = None) -> tuple[subprocess.Popen[str], int]:
+    """`harness sitl` and the GCS port it reports (read from its stderr, which stays a pipe)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "harness.cli", "sitl", "--vehicles", str(vehicles), "--out", str(out)],
+        stdout=stdout if stdout is not None else subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stderr is not None
+    for _ in range(50):  # the ports line comes first unless something warned before it
+        line = proc.stderr.readline()
+        found = re.search(r"ground station on udp port (\d+)", line)
+        if found:
+            return proc, int(found.group(1))
+        if not line:
+            break
+    proc.kill()
+    proc.wait(10)
+    raise AssertionError("harness sitl did not report its GCS port")
