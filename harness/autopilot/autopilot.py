@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from harness.autopilot.api import (
@@ -88,6 +88,10 @@ class Autopilot:
         self._offboard_sp: OffboardSetpoint | None = None
         self._offboard_att: AttitudeTarget | None = None
         self._cache: VehicleState | None = None
+        self._bell: Callable[[], None] | None = None
+        self._bell_armed = False
+        self._ring_at_ns = 0
+        self._rung_status = -1
 
     # ------------------------------------------------------------------ lockstep
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
@@ -108,7 +112,31 @@ class Autopilot:
                     self._say(Severity(sev), text)
                 c.texts.clear()
             self._cache = None
+            if self._bell_armed:
+                status = self.packed_status()
+                if c.t_ns >= self._ring_at_ns or self._texts or self._reached or status != self._rung_status:
+                    self._bell_armed = False
+                    self._rung_status = status
+                    assert self._bell is not None
+                    self._bell()
             return motors
+
+    # ------------------------------------------------------------------ telemetry bell
+    def attach_bell(self, bell: Callable[[], None]) -> None:
+        """Let the stepping thread call ``bell()`` when the MAVLink side has something to do (no polling).
+
+        It rings once sim time reaches the time given to :meth:`ring_at` (the next sim-rate telemetry
+        stream), or as soon as the flight mode, arming or landed state changes, a status text is said or a
+        mission item is reached; then it stays silent until :meth:`ring_at` arms it again.
+        """
+        self._bell = bell
+        self.ring_at(0)
+
+    def ring_at(self, t_ns: int) -> None:
+        """Arm the bell for sim time ``t_ns`` (any thread; the MAVLink thread calls it after each service)."""
+        if self._bell is not None:
+            self._ring_at_ns = t_ns
+            self._bell_armed = True
 
     def _say(self, severity: Severity, text: str) -> None:
         self._texts.append(StatusText(max(self.core.t_ns, 0), severity, text))

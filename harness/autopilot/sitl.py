@@ -5,7 +5,7 @@ vehicle starts again in the same run directory.
 
 ``harness run`` starts one of these for all vehicles (the host benchmark in ``docs/autopilot.md`` shows
 one process for several vehicles is cheaper than one per vehicle). Each vehicle gets a MAVLink server
-on the wall clock (API port ``api_port_base + i``, GCS port) and writes ``vehicle-<i>.tlog`` in the run
+(all served by one wall-clock thread, ``MavlinkHub``) (API port ``api_port_base + i``, GCS port) and writes ``vehicle-<i>.tlog`` in the run
 directory: every MAVLink frame it sent or received, each preceded by its 8-byte big-endian Unix time in
 microseconds (the format of QGroundControl and MAVProxy telemetry logs).
 """
@@ -24,6 +24,7 @@ from typing import BinaryIO
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.autopilot.host import run_autopilots
 from harness.autopilot.mavlink.codec import SigningConfig
+from harness.autopilot.mavlink.hub import MavlinkHub
 from harness.autopilot.mavlink.param_store import persist_params
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
@@ -72,13 +73,24 @@ class _Attached:
             self.tlog.close()
 
 
-def attach_mavlink(ap: Autopilot, ports: PortsConfig, run_dir: Path | None, signing: SigningConfig | None) -> _Attached:
+def attach_mavlink(
+    ap: Autopilot,
+    ports: PortsConfig,
+    run_dir: Path | None,
+    signing: SigningConfig | None,
+    hub: MavlinkHub | None = None,
+) -> _Attached:
+    """The MAVLink server (and tlog, stored parameters) of ``ap``, served by ``hub`` (or a thread of its own)."""
     tlog = None
     if run_dir is not None:
         tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog")
         for refused in persist_params(ap.params, run_dir, ap.vehicle):
             log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
-    server = MavlinkServer(ap, ap.vehicle, ports, signing, tap=tlog.write if tlog else None).start()
+    server = MavlinkServer(ap, ap.vehicle, ports, signing, tap=tlog.write if tlog else None)
+    if hub is None:
+        server.start()
+    else:
+        hub.add(server)
     return _Attached(server, tlog)
 
 
@@ -101,6 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, json.JSONDecodeError) as exc:
         raise ScenarioError(f"autopilot process: bad argument: {exc}") from None
     ports = PortsConfig(api_port_base=a.api_port_base, gcs_port=a.gcs_port)
+    hub = MavlinkHub().start()
     try:
         run_autopilots(
             a.address,
@@ -108,11 +121,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             config_for=lambda v: AutopilotConfig(
                 vehicle=v, use_ground_truth=a.ground_truth, params=overrides.get(v, {})
             ),
-            attach=lambda autopilot: attach_mavlink(autopilot, ports, a.run_dir, signing),
+            attach=lambda autopilot: attach_mavlink(autopilot, ports, a.run_dir, signing, hub),
         )
     except HarnessError as exc:
         log.error("%s", exc)
         return 1
+    finally:
+        hub.stop()
     return 0
 
 

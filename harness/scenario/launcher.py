@@ -322,6 +322,7 @@ class Launcher:
     def _local_autopilots(self, channel: Channel) -> list[Any]:
         """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process."""
         from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+        from harness.autopilot.mavlink.hub import MavlinkHub
         from harness.autopilot.mavlink.transport import PortsConfig
         from harness.autopilot.sitl import attach_mavlink
         from harness.fdm.frame import decode_frame
@@ -332,7 +333,9 @@ class Launcher:
             for i in range(plan.vehicles)
         }
         ports = PortsConfig(api_port_base=self.api_port_base, gcs_port=self.gcs_port)
-        handles = [attach_mavlink(ap, ports, plan.out, None) for ap in aps.values()]
+        hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
+        handles: list[Any] = [attach_mavlink(ap, ports, plan.out, None, hub) for ap in aps.values()]
+        handles.append(hub)
 
         def step(m: p.BeginTickAC) -> p.EndTickAC:
             ap = aps[m.vehicle]

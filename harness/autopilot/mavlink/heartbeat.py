@@ -45,6 +45,10 @@ class HeartbeatSchedule:
             return True
         return False
 
+    def next_due_ns(self) -> int:
+        """Wall time of the next periodic heartbeat (0: one is due now)."""
+        return 0 if self._last_ns is None else self._last_ns + self.period_ns
+
     def force(self) -> None:
         """Send one at the next check (after a command that changes arming or mode)."""
         self._last_ns = None

@@ -258,6 +258,11 @@ class MissionService:
         up.retries += 1
         return [self._request(up, now_ns)]
 
+    def next_retry_ns(self) -> int | None:
+        """Wall time at which :meth:`tick` has a retry (or a timeout) to send; None when no upload runs."""
+        up = self._upload
+        return None if up is None else up.last_ns + self.retry_ns
+
     @property
     def uploading(self) -> bool:
         return self._upload is not None

@@ -1,9 +1,13 @@
-"""The MAVLink server of one vehicle: a thread on the wall clock around the pure services.
+"""The MAVLink server of one vehicle: the pure services behind its UDP links, served on the wall clock.
 
 It never waits for the simulation: it reads the autopilot through its thread-safe API (``state()`` is a
 snapshot of the last tick), answers within milliseconds, sends heartbeats at >= 1 Hz of wall time while
 the simulation is paused or slow, and streams telemetry at the faster of the sim and the wall rate.
-Bad input is counted, logged at debug level, and never stops the thread.
+Bad input is counted, logged at debug level, and never stops the server.
+
+A :class:`~harness.autopilot.mavlink.hub.MavlinkHub` thread drives it (one hub serves every vehicle of a
+process): ``receive`` on a datagram, ``service`` when ``next_wake_ns`` (wall) is reached or the autopilot's
+bell rings (sim-rate streams and events). ``start()`` gives a server a hub of its own.
 
     server = MavlinkServer(autopilot, vehicle=0, ports=PortsConfig(...), signing=None)
     server.start() ... server.counters() ... server.stop()
@@ -13,7 +17,6 @@ from __future__ import annotations
 
 import copy
 import logging
-import select
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,6 +29,7 @@ from harness.autopilot.mavlink.codec import Codec, FrameStatus, SigningConfig
 from harness.autopilot.mavlink.commands import CommandIn, CommandService
 from harness.autopilot.mavlink.datalink import DataLinkMonitor
 from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule, heartbeat_message
+from harness.autopilot.mavlink.hub import MavlinkHub
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, statustext
 from harness.autopilot.mavlink.mission import MissionService, ProgressTracker
 from harness.autopilot.mavlink.offboard import handle_setpoint
@@ -56,9 +60,16 @@ _SETPOINT_IDS = {
     _M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
 }
 _TEXT_REPEAT_NS = 2_000_000_000
-_MAX_WAIT_NS = 10_000_000
-"""Longest select() wait while sim time moves: sim-rate streams are checked at least at 100 Hz."""
-_MAX_WAIT_PAUSED_NS = 100_000_000
+_POLL_NS = 10_000_000
+"""Without a bell (an ``AutopilotApi`` that lacks ``attach_bell``), sim-rate streams are checked every 10 ms
+of wall time while sim time moves ..."""
+_POLL_PAUSED_NS = 100_000_000
+"""... and every 100 ms while it stands still."""
+_SAFETY_NS = 1_000_000_000
+"""With a bell, the server is still serviced at least once a second (data-link loss, home at first fix)."""
+_PARAM_PACE_NS = 2_000_000
+"""A parameter list download goes out in batches every 2 ms (``ParamService.per_tick`` per batch)."""
+_NEVER = 1 << 62
 
 
 @dataclass
@@ -129,21 +140,45 @@ class MavlinkServer:
         self._t_ns = 0
         self._sim_moving = True
         self._home: GeoPoint | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._hub: MavlinkHub | None = None
+        self._own_hub = False
+        self._ring_at: Callable[[int], None] | None = None
+        self.next_wake_ns = 0
+        """Wall time (monotonic ns) at which the hub must call :meth:`service` at the latest."""
 
     # ------------------------------------------------------------------ public
     def start(self) -> MavlinkServer:
-        if self._thread is not None:
+        """Serve on a thread of its own (a hub with just this server)."""
+        if self._hub is not None:
             raise RuntimeError("MavlinkServer already started")
-        self._thread = threading.Thread(target=self._run, name=f"mavlink-{self.vehicle}", daemon=True)
-        self._thread.start()
+        hub = MavlinkHub(name=f"mavlink-{self.vehicle}")
+        hub.add(self)
+        hub.start()
+        self._own_hub = True
         return self
 
+    @property
+    def alive(self) -> bool:
+        """Whether a hub thread is serving this server."""
+        return self._hub is not None and self._hub.alive
+
+    def attached(self, hub: MavlinkHub) -> None:
+        """Called by ``hub`` when it takes this server: hook the autopilot's bell to it (if it has one)."""
+        self._hub = hub
+        attach = getattr(self.api, "attach_bell", None)
+        ring_at = getattr(self.api, "ring_at", None)
+        if attach is not None and ring_at is not None:
+            attach(lambda: hub.ring(self))
+            self._ring_at = ring_at
+        self.next_wake_ns = 0
+
     def stop(self, timeout_s: float = 2.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
+        hub = self._hub
+        if hub is not None:
+            if self._own_hub:
+                hub.stop(timeout_s)
+            else:
+                hub.remove(self)
         for link in self.links:
             link.close()
 
@@ -170,39 +205,37 @@ class MavlinkServer:
         c.send_errors = sum(lk.send_errors for lk in self.links)
         return c
 
-    # ------------------------------------------------------------------ loop
-    def _run(self) -> None:
-        socks = [lk.sock for lk in self.links]
-        while not self._stop.is_set():
-            try:
-                ready, _, _ = select.select(socks, [], [], self._wait_s())
-            except (OSError, ValueError) as e:  # sockets closed under us (stop) or a transient error
-                if self._stop.is_set():
-                    return
-                self._count("handler_errors")
-                self._log_once(e, "select")
-                self._stop.wait(0.01)
-                continue
-            try:
-                now = self._wall_ns()
-                for i, link in enumerate(self.links):
-                    if link.sock in ready:
-                        for data, addr in link.receive(512):
-                            self._on_datagram(i, data, addr, now)
-                self._tick(self._wall_ns())
-            except Exception as e:  # never let one bad iteration end the thread
-                self._count("handler_errors")
-                self._log_once(e, "server loop")
+    # ------------------------------------------------------------------ driven by the hub
+    def receive(self, link: int, now: int) -> None:
+        """Datagrams are waiting on ``links[link]``: handle them (hub thread)."""
+        try:
+            for data, addr in self.links[link].receive(512):
+                self._on_datagram(link, data, addr, now)
+        except Exception as e:  # never let one bad datagram end the thread
+            self._count("handler_errors")
+            self._log_once(e, "receive")
 
-    def _wait_s(self) -> float:
-        """Until the next wall-clock stream is due; at most 10 ms while sim time moves (sim-rate streams),
-        at most 100 ms while it stands still (a paused simulation costs almost no CPU)."""
+    def service(self, now: int) -> None:
+        """Everything periodic that is due (telemetry, heartbeat, texts, paced transfers); then plan the next
+        wake-up: a wall time for the hub, a sim time for the autopilot's bell (hub thread)."""
+        try:
+            self._tick(now)
+        except Exception as e:
+            self._count("handler_errors")
+            self._log_once(e, "service")
+        wake = min(
+            self.heartbeat.next_due_ns(),
+            self.streams.next_due_wall_ns() or _NEVER,
+            self.missions.next_retry_ns() or _NEVER,
+        )
         if self.params.busy:
-            return 0.002
-        cap = _MAX_WAIT_NS if self._sim_moving else _MAX_WAIT_PAUSED_NS
-        nxt = self.streams.next_due_wall_ns()
-        wait = cap if nxt is None else min(cap, max(0, nxt - self._wall_ns()))
-        return wait / 1e9
+            wake = min(wake, now + _PARAM_PACE_NS)
+        if self._ring_at is None:
+            wake = min(wake, now + (_POLL_NS if self._sim_moving else _POLL_PAUSED_NS))
+        else:
+            wake = min(wake, now + _SAFETY_NS)
+            self._ring_at(self.streams.next_due_sim_ns() or _NEVER)
+        self.next_wake_ns = wake
 
     def _log_once(self, e: Exception, what: str) -> None:
         """A traceback the first time an error of this kind happens, debug lines after that."""

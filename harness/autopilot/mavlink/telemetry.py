@@ -310,20 +310,34 @@ class StreamScheduler:
         return -1 if s is None else s.interval_ns // 1000
 
     def due(self, wall_ns: int, sim_ns: int) -> list[int]:
+        """The streams due now; each is then counted as sent at ``wall_ns`` and ``sim_ns``.
+
+        On the sim clock a stream keeps its phase (the next send is one interval after the previous one was
+        due, not after it was served), so a stream of 10 Hz is 10 Hz of sim time however late the server
+        gets to it; a stream more than one interval behind starts again from now.
+        """
         out = []
         for msg_id, s in self._streams.items():
-            if (
-                s.last_wall_ns is None
-                or s.last_sim_ns is None
-                or wall_ns - s.last_wall_ns >= s.interval_ns
-                or sim_ns - s.last_sim_ns >= s.interval_ns
-            ):
-                s.last_wall_ns = wall_ns
+            last_sim = s.last_sim_ns
+            if s.last_wall_ns is None or last_sim is None:
                 s.last_sim_ns = sim_ns
-                out.append(msg_id)
+            elif sim_ns - last_sim >= s.interval_ns:
+                nxt = last_sim + s.interval_ns
+                s.last_sim_ns = nxt if sim_ns - nxt < s.interval_ns else sim_ns
+            elif wall_ns - s.last_wall_ns >= s.interval_ns:
+                s.last_sim_ns = sim_ns
+            else:
+                continue
+            s.last_wall_ns = wall_ns
+            out.append(msg_id)
         return out
 
     def next_due_wall_ns(self) -> int | None:
         """Earliest wall time at which a stream falls due (for the server's select timeout)."""
         times = [s.last_wall_ns + s.interval_ns for s in self._streams.values() if s.last_wall_ns is not None]
+        return min(times) if times else None
+
+    def next_due_sim_ns(self) -> int | None:
+        """Earliest sim time at which a stream falls due (when the autopilot's bell must ring)."""
+        times = [s.last_sim_ns + s.interval_ns for s in self._streams.values() if s.last_sim_ns is not None]
         return min(times) if times else None
