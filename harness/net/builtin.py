@@ -177,6 +177,10 @@ class BuiltinRadio:
         self.delivered += len(due)
         return StepResult(due, drops)
 
+    def next_event_ns(self) -> int | None:
+        """When the next packet in flight arrives (None: nothing in flight, only new packets matter)."""
+        return min((at for at, _ in self.in_flight), default=None)
+
     def _defer(self, src: int, start: int, airtime: int, pos: Mapping[int, Vec3], txs: list[_Tx]) -> int:
         """CSMA: move ``start`` past every transmission ``src`` can hear, plus a random backoff."""
         here = pos.get(src)

@@ -7,7 +7,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from harness.simclock.protocol import Packet
+from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE, Packet
 
 Vec3 = tuple[float, float, float]
 
@@ -51,3 +51,19 @@ class NetworkModel(Protocol):
         """Simulate [t, t + period): take the packets enqueued in this tick's phase 0, return what arrives
         in the interval (earlier packets may arrive now: models keep transmissions in flight)."""
         ...
+
+
+def lookahead_ns(model: NetworkModel, t_ns: int, period_ns: int) -> int:
+    """END-TICK-1's ``idle_until_ns`` for ``model`` after the interval starting at ``t_ns``.
+
+    A model with ``next_event_ns()`` (the built-in radio) is left out of phase 1 until the interval that
+    holds its next arrival, unless new packets come; any other model (ns-3, whose own events run between
+    packets) takes part in every phase 1.
+    """
+    next_event = getattr(model, "next_event_ns", None)
+    if next_event is None:
+        return EVERY_PHASE
+    at = next_event()
+    if at is None:
+        return NO_DEADLINE
+    return max(t_ns + 1, at - period_ns + 1)  # the first phase tick t with t + period > at

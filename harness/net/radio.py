@@ -63,12 +63,33 @@ def receive(timeout: float | None = None) -> Message | None:
     return _message(_rt().take_delivery(None, timeout))
 
 
+def _resolve(fut: asyncio.Future[None]) -> None:
+    if not fut.done():
+        fut.set_result(None)
+
+
 async def receive_async(timeout: float | None = None) -> Message | None:
-    """Like :func:`receive`, without blocking the event loop (it sleeps a phase at a time, in sim time)."""
+    """Like :func:`receive`, without blocking the event loop: it awaits the next delivery (or ``timeout``
+    seconds of sim time) as a future, so an idle script is not woken at every phase."""
     rt = _rt()
     deadline = None if timeout is None else rt.now_ns() + round(timeout * 1e9)
+    loop = asyncio.get_running_loop()
     while True:
         msg = _message(rt.take_delivery(None, 0.0))
-        if msg is not None or rt.closed or (deadline is not None and rt.now_ns() >= deadline):
+        if msg is not None or rt.closed:
             return msg
-        await asyncio.sleep(rt.phase_period_ns / 1e9)
+        left_ns = None if deadline is None else deadline - rt.now_ns()
+        if left_ns is not None and left_ns <= 0:
+            return None
+        arrived: asyncio.Future[None] = loop.create_future()
+
+        def on_delivery(fut: asyncio.Future[None] = arrived) -> None:
+            loop.call_soon_threadsafe(_resolve, fut)
+
+        token = rt.add_inbox_callback(on_delivery)
+        try:
+            await asyncio.wait_for(arrived, None if left_ns is None else left_ns / 1e9)
+        except TimeoutError:
+            pass
+        finally:
+            rt.remove_inbox_callback(token)

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import IO
 
 from harness.errors import HarnessError, ScenarioError
-from harness.net.model import NetworkModel, StepResult
+from harness.net.model import NetworkModel, StepResult, lookahead_ns
 from harness.simclock import protocol as p
 from harness.simclock.client import ChannelClient, ChannelClosed
 
@@ -73,7 +73,7 @@ def serve(client: ChannelClient, model: NetworkModel, events: IO[str] | None = N
                 positions = {vp.vehicle: vp.ned_m for vp in msg.positions}
                 result = model.step(msg.t_ns, msg.period_ns, positions, msg.packets)
                 out: list[p.Message] = [p.Deliver(d.at_ns, d.packet, d.rssi_dbm) for d in result.deliveries]
-                out.append(p.EndTick1(msg.t_ns))
+                out.append(p.EndTick1(msg.t_ns, lookahead_ns(model, msg.t_ns, msg.period_ns)))
                 client.send_many(out)
                 if events is not None:
                     _write_events(events, result)

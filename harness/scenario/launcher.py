@@ -211,6 +211,8 @@ class Launcher:
         self.paused = threading.Event()
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
+        self._aps: dict[int, Any] = {}
+        """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
 
     def run(self) -> RunResult:
         from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
@@ -325,7 +327,6 @@ class Launcher:
         from harness.autopilot.mavlink.hub import MavlinkHub
         from harness.autopilot.mavlink.transport import PortsConfig
         from harness.autopilot.sitl import attach_mavlink
-        from harness.fdm.frame import decode_frame
 
         plan = self.plan
         aps = {
@@ -337,11 +338,7 @@ class Launcher:
         handles: list[Any] = [attach_mavlink(ap, ports, plan.out, None, hub) for ap in aps.values()]
         handles.append(hub)
 
-        def step(m: p.BeginTickAC) -> p.EndTickAC:
-            ap = aps[m.vehicle]
-            return p.EndTickAC(m.t_ns, m.vehicle, ap.step(decode_frame(m.frame)), ap.packed_status())
-
-        channel.attach_local_autopilots(aps, step)
+        self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
         return handles
 
     def _start_children(self, sup: Any, address: str) -> None:
@@ -424,7 +421,7 @@ class Launcher:
         end_ns = None if plan.duration_s is None else round(plan.duration_s * NS_PER_S)
         missions = sum(1 for m in plan.missions[:n] if m)
         frames = phys.frames()
-        link = NativeLink(channel)
+        link = NativeLink(channel, self._aps)
         paused_once = False
         wall0 = real_monotonic_ns()
         last_progress = wall0

@@ -118,6 +118,20 @@ class _Peer:
     deadline_ns: int | None = None
     waiting_for: str = ""
     closed: bool = False
+    dirty: bool = False
+    """Has output queued in ``out`` that the next flush sends."""
+    want_write: bool = False
+    """The socket was full: the selector watches it for writability."""
+    send_error: str = ""
+    """A send failed (the peer closed its end). What it sent before is still read (its BYE) before it is
+    declared lost with this reason."""
+    idle_until_ns: int = p.EVERY_PHASE
+    """Lookahead from its last END-TICK-0/1: leave it out of its phase before this sim time."""
+    deliver_wakes: bool = True
+    woken: bool = False
+    """A WAKE (type 0) arrived: include it in the next phase 0."""
+    delivered: bool = False
+    """A DELIVER was routed to it (type 0) since its last phase 0."""
 
     @property
     def label(self) -> str:
@@ -176,6 +190,10 @@ class Channel:
         self._deadlines: dict[_Peer, int] = {}
         self._local_autopilots: dict[int, Callable[[p.BeginTickAC], p.EndTickAC]] = {}
         self._members: dict[p.PeerKind, list[_Peer]] | None = None
+        self._routes: dict[int, list[_Peer]] | None = None
+        self._holders: dict[int, _Peer] | None = None
+        self._unadmitted = 0
+        self._dirty: list[_Peer] = []
         self._tick_result: list[p.EndTickAC] | None = None
 
     # -- lifecycle ----------------------------------------------------------------------------
@@ -228,6 +246,7 @@ class Channel:
             self._close_all()
 
     def _poll_once(self, timeout: float | None) -> None:
+        self._flush_dirty()
         for key, mask in self._sel.select(timeout):
             if key.fileobj is self._server:
                 self._accept()
@@ -301,6 +320,10 @@ class Channel:
             raise SimulationError(self.failure)
         self._tick_result = None
         try:
+            if begin_ticks and begin_ticks[0].tick % self.config.phase_every == 0:
+                # A tick whose autopilots are all in this process completes without waiting for a socket;
+                # read what came in between (WAKE of a mission left out by its lookahead, BYE, HELLO).
+                self._poll_once(0.0)
             for m in begin_ticks:
                 self._on_upstream(m)
             while self._tick_result is None:
@@ -309,6 +332,7 @@ class Channel:
             self._fail_run(str(exc))
             raise SimulationError(str(exc)) from None
         result, self._tick_result = self._tick_result, None
+        self._flush_dirty()
         return result
 
     def close(self, reason: str = "end of run") -> None:
@@ -360,33 +384,55 @@ class Channel:
         self._send_raw(peer, p.encode(msg))
 
     def _send_raw(self, peer: _Peer, data: bytes) -> None:
-        if peer.closed:
+        """Queue ``data`` for ``peer``; it goes out with everything else queued for it at the next flush
+        (before the channel blocks again), so a burst of messages costs one system call per peer."""
+        if peer.closed or peer.send_error:
             return
-        if peer.out:
-            peer.out += data
+        peer.out += data
+        if not peer.dirty:
+            peer.dirty = True
+            self._dirty.append(peer)
+
+    def _flush_dirty(self) -> None:
+        dirty = self._dirty
+        if not dirty:
             return
-        try:
-            n = peer.sock.send(data)
-        except BlockingIOError:
-            n = 0
-        except OSError as exc:
-            self._peer_lost(peer, f"connection broke while sending: {exc}")
-            return
-        if n < len(data):
-            peer.out += data[n:]
-            self._sel.modify(peer.sock, selectors.EVENT_READ | selectors.EVENT_WRITE, peer)
+        self._dirty = []
+        for peer in dirty:
+            peer.dirty = False
+            if peer.out and not peer.want_write and not peer.closed:
+                self._flush(peer)
 
     def _flush(self, peer: _Peer) -> None:
         try:
             n = peer.sock.send(peer.out)
         except BlockingIOError:
-            return
+            n = 0
         except OSError as exc:
-            self._peer_lost(peer, f"connection broke while sending: {exc}")
+            self._send_failed(peer, exc)
             return
         del peer.out[:n]
-        if not peer.out:
+        if peer.out and not peer.want_write:
+            peer.want_write = True
+            self._sel.modify(peer.sock, selectors.EVENT_READ | selectors.EVENT_WRITE, peer)
+        elif not peer.out and peer.want_write:
+            peer.want_write = False
             self._sel.modify(peer.sock, selectors.EVENT_READ, peer)
+
+    def _send_failed(self, peer: _Peer, exc: OSError) -> None:
+        """The peer's end is gone. What it sent before (a mission's BYE with its exit code) may still wait
+        unread: the selector reports the socket readable, ``_read`` takes that first, then the end of the
+        stream declares the peer lost with this reason."""
+        why = f"connection broke while sending: {exc}"
+        if peer.upstream:
+            self._peer_lost(peer, why)
+            return
+        peer.send_error = why
+        peer.out.clear()
+        if peer.want_write:
+            peer.want_write = False
+            with contextlib.suppress(KeyError, ValueError, OSError):
+                self._sel.modify(peer.sock, selectors.EVENT_READ, peer)
 
     def _read(self, peer: _Peer) -> None:
         try:
@@ -397,7 +443,7 @@ class Channel:
             self._peer_lost(peer, f"connection broke: {exc}")
             return
         if not data:
-            self._peer_lost(peer, "disconnected")
+            self._peer_lost(peer, peer.send_error or "disconnected")
             return
         try:
             msgs = peer.decoder.feed(data)
@@ -453,6 +499,8 @@ class Channel:
         elif not self._in_tick or self._join_deadline is not None:
             self._admit(peer)
             self._progress()
+        else:
+            self._unadmitted += 1  # joins between two ticks
 
     def _reject(self, peer: _Peer, code: p.ErrorCode, why: str) -> None:
         log.warning("channel %s: refused %r: %s", self.config.name, peer.name, why)
@@ -468,13 +516,19 @@ class Channel:
 
     def _admit(self, peer: _Peer) -> None:
         peer.admitted = True
-        self._members = None
+        self._membership_changed()
         self._announce_up()
 
     def _admit_pending(self) -> None:
+        if not self._unadmitted:
+            return
+        self._unadmitted = 0
         for peer in list(self._peers.values()):
             if peer.kind is not None and not peer.admitted and not peer.closed:
                 self._admit(peer)
+
+    def _membership_changed(self) -> None:
+        self._members = self._routes = self._holders = None
 
     def _announce_up(self) -> None:
         if self._up is None or self._up.kind != p.PeerKind.CHILD:
@@ -510,9 +564,13 @@ class Channel:
         if isinstance(msg, p.EndTickAC):
             self._on_end_tick_ac(peer, msg)
         elif isinstance(msg, p.EndTick0):
+            peer.idle_until_ns, peer.deliver_wakes = msg.idle_until_ns, msg.deliver_wakes
             self._on_phase_end(peer, msg.t_ns, self._wait0, "0")
         elif isinstance(msg, p.EndTick1):
+            peer.idle_until_ns = msg.idle_until_ns
             self._on_phase_end(peer, msg.t_ns, self._wait1, "1")
+        elif isinstance(msg, p.Wake):
+            peer.woken = True
         elif isinstance(msg, p.Enqueue):
             self._on_enqueue(peer, msg)
         elif isinstance(msg, p.Deliver):
@@ -521,7 +579,7 @@ class Channel:
             peer.vehicles = set(msg.vehicles)
             peer.mission_vehicles = set(msg.mission_vehicles)
             peer.members = msg.members
-            self._members = None
+            self._membership_changed()
             self._announce_up()
             self._progress()
         elif isinstance(msg, p.Bye):
@@ -578,9 +636,15 @@ class Channel:
 
     def _route_deliver(self, msg: p.Deliver, source: _Peer | None) -> None:
         dst = msg.packet.dst
-        for peer in self._active(p.PeerKind.TYPE0):
-            if peer.vehicle == dst:
-                self._send(peer, msg)
+        routes = self._routes
+        if routes is None:
+            routes = {}
+            for peer in self._active(p.PeerKind.TYPE0):
+                routes.setdefault(peer.vehicle, []).append(peer)
+            self._routes = routes
+        for peer in routes.get(dst, ()):
+            peer.delivered = True
+            self._send(peer, msg)
         for peer in self._active(p.PeerKind.CHILD):
             if peer is not source and dst in peer.mission_vehicles:
                 self._send(peer, msg)
@@ -639,10 +703,13 @@ class Channel:
 
     def _route_ticks(self) -> None:
         """Forward this tick's BEGIN-TICK-AC to the holders of the vehicles, with per-holder counts."""
-        holders: dict[int, _Peer] = {}
-        for peer in self._active(p.PeerKind.AUTOPILOT, p.PeerKind.CHILD):
-            for v in peer.vehicles:
-                holders[v] = peer
+        holders = self._holders
+        if holders is None:
+            holders = {}
+            for peer in self._active(p.PeerKind.AUTOPILOT, p.PeerKind.CHILD):
+                for v in peer.vehicles:
+                    holders[v] = peer
+            self._holders = holders
         local = self._local_autopilots
         missing = sorted({m.vehicle for m in self._bta} - holders.keys() - local.keys())
         if missing:
@@ -668,6 +735,7 @@ class Channel:
             self._set_deadline(peer, now + int(self.config.stall_timeout_s * NS_PER_S))
             peer.waiting_for = f"END-TICK-AC of tick {self._tick}"
             self._send_raw(peer, data)
+        self._flush_dirty()  # BEGIN-TICK-0 and remote BEGIN-TICK-AC go out before the local autopilots run
         for m in mine:  # in-process autopilots answer while the remote ones and the missions work
             eta = local[m.vehicle](m)
             if eta.t_ns != m.t_ns or eta.vehicle != m.vehicle:
@@ -682,23 +750,41 @@ class Channel:
         msg = p.encode(p.BeginTick0(self._t_ns, self._tick))
         deadline = real_monotonic_ns() + int(self.config.stall_timeout_s * NS_PER_S)
         self._trace("bt0", None)
+        t = self._t_ns
         for peer in list(self._active(p.PeerKind.TYPE0, p.PeerKind.CHILD)):
+            if (
+                peer.kind == p.PeerKind.TYPE0
+                and peer.idle_until_ns > t
+                and not peer.woken
+                and not (peer.delivered and peer.deliver_wakes)
+            ):
+                continue  # idle by its own lookahead: nothing of it can run in this phase
+            peer.woken = peer.delivered = False
             self._wait0.add(peer)
             self._set_deadline(peer, deadline)
             peer.waiting_for = f"END-TICK-0 of tick {self._tick}"
             self._send_raw(peer, msg)
 
     def _start_phase1(self, parent_msg: p.BeginTick1 | None) -> None:
+        self._phase1_started = True
+        carrying = bool(parent_msg.packets if parent_msg is not None else self._packets)
+        t = self._t_ns
+        peers = [
+            peer
+            for peer in self._active(p.PeerKind.TYPE1, p.PeerKind.CHILD)
+            if carrying or peer.kind != p.PeerKind.TYPE1 or peer.idle_until_ns <= t
+        ]
+        if not peers:
+            return  # every network simulator is idle by its lookahead and nothing was enqueued
         if parent_msg is not None:
             msg = parent_msg
         else:
             positions = tuple(p.VehiclePosition(v, self._positions[v]) for v in sorted(self._positions))
             msg = p.BeginTick1(self._t_ns, self._tick, self.config.phase_period_ns, positions, tuple(self._packets))
-        self._phase1_started = True
         data = p.encode(msg)
         deadline = real_monotonic_ns() + int(self.config.stall_timeout_s * NS_PER_S)
         self._trace("bt1", None)
-        for peer in list(self._active(p.PeerKind.TYPE1, p.PeerKind.CHILD)):
+        for peer in peers:
             self._wait1.add(peer)
             self._set_deadline(peer, deadline)
             peer.waiting_for = f"END-TICK-1 of tick {self._tick}"
@@ -837,8 +923,12 @@ class Channel:
     def _close_peer(self, peer: _Peer) -> None:
         if peer.closed:
             return
+        if peer.out and not peer.send_error:
+            with contextlib.suppress(OSError):  # best effort: what was queued for it (an ERROR saying why)
+                peer.sock.send(peer.out)
+        peer.out.clear()
         peer.closed = True
-        self._members = None
+        self._membership_changed()
         self._set_deadline(peer, None)
         self._wait0.discard(peer)
         self._wait1.discard(peer)
@@ -852,6 +942,7 @@ class Channel:
             self._up = None
 
     def _broadcast_bye(self, reason: str) -> None:
+        self._flush_dirty()
         data = p.encode(p.Bye(reason))
         for peer in list(self._peers.values()):
             if not peer.upstream:
@@ -859,6 +950,7 @@ class Channel:
                     peer.sock.send(data)
 
     def _fail_run(self, message: str) -> None:
+        self._flush_dirty()
         self.failure = message
         log.error("channel %s: run failed: %s", self.config.name, message)
         data = p.encode(p.Error(p.ErrorCode.PEER_LOST, message, fatal=True))

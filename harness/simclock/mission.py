@@ -56,13 +56,13 @@ class _ClockThread(threading.Thread):
             while True:
                 for msg in self.client.recv():
                     if isinstance(msg, p.BeginTick0):
-                        self.rt.run_phase(msg.t_ns)
+                        idle_until, deliver_wakes = self.rt.run_phase(msg.t_ns)
                         out: list[p.Message] = []
                         for o in self.rt.take_outbox():
                             pk = p.Packet(msg.t_ns, self.rt.vehicle, o.dst, o.port, self.seq, o.payload)
                             self.seq += 1
                             out.append(p.Enqueue(pk))
-                        out.append(p.EndTick0(msg.t_ns))
+                        out.append(p.EndTick0(msg.t_ns, idle_until, deliver_wakes))
                         self.client.send_many(out)
                     elif isinstance(msg, p.Deliver):
                         pk = msg.packet
@@ -178,6 +178,14 @@ def run_mission(spec: MissionSpec) -> int:
     api = mavsdk_compat.install(spec.script, port, os.environ.get("HARNESS_MAVSDK_API") or None)
     if api:
         log.info("mission %s: MAVSDK %s API, vehicle port %d", spec.name, api, port)
+
+    def wake() -> None:
+        try:
+            client.send(p.Wake())
+        except ChannelClosed:
+            pass  # the run is over; the clock thread ends the script
+
+    rt.request_phase = wake
     clock = _ClockThread(client, rt)
     clock.start()
     rt.wait_first_phase()

@@ -48,7 +48,7 @@ from typing import Annotated, Final
 
 import msgspec
 
-PROTOCOL_VERSION: Final = 1
+PROTOCOL_VERSION: Final = 2
 """Bumped on every incompatible change of a message below."""
 
 MAX_FRAME_BYTES: Final = 16 * 1024 * 1024
@@ -56,6 +56,11 @@ MAX_FRAME_BYTES: Final = 16 * 1024 * 1024
 
 BROADCAST: Final = -1
 """Destination vehicle of a broadcast packet."""
+
+EVERY_PHASE: Final = 0
+"""``idle_until_ns`` of a subscriber that takes part in every phase (the default)."""
+NO_DEADLINE: Final = 1 << 62
+"""``idle_until_ns`` of a subscriber with no timed wait: only a WAKE (or a DELIVER it waits for) needs it."""
 
 _LEN = struct.Struct(">I")
 
@@ -192,9 +197,18 @@ class BeginTick0(_Msg, tag="BT0", frozen=True):
 
 
 class EndTick0(_Msg, tag="ET0", frozen=True):
-    """END-TICK-0: type-0 subscriber -> channel: idle until the next phase 0."""
+    """END-TICK-0: type-0 subscriber -> channel: idle until the next phase 0.
+
+    Lookahead (optional): ``idle_until_ns`` is the earliest sim time the subscriber must run again (its
+    next timed wait); until then the channel leaves it out of phase 0, unless it sends WAKE or, when
+    ``deliver_wakes``, a DELIVER for it arrives. :data:`EVERY_PHASE` (the default): every phase 0, as in
+    the paper; :data:`NO_DEADLINE`: no timed wait at all. Its script still never runs outside phase 0 and
+    every wait ends at the same phase as without lookahead; only idle phases are skipped.
+    """
 
     t_ns: int
+    idle_until_ns: int = EVERY_PHASE
+    deliver_wakes: bool = True
 
 
 class Packet(msgspec.Struct, array_like=True, frozen=True):
@@ -238,9 +252,20 @@ class Deliver(_Msg, tag="DLV", frozen=True):
 
 
 class EndTick1(_Msg, tag="ET1", frozen=True):
-    """END-TICK-1: type-1 -> channel: the interval is simulated, every DELIVER of it was sent."""
+    """END-TICK-1: type-1 -> channel: the interval is simulated, every DELIVER of it was sent.
+
+    ``idle_until_ns`` (optional lookahead): nothing is in flight before this sim time, so the channel may
+    leave the subscriber out of phase 1 until then, unless a phase 0 enqueues packets. A model whose own
+    events run between packets (ns-3) keeps the default :data:`EVERY_PHASE`.
+    """
 
     t_ns: int
+    idle_until_ns: int = EVERY_PHASE
+
+
+class Wake(_Msg, tag="WAKE", frozen=True):
+    """WAKE: type-0 -> channel, between phases: something arrived for the script on the wall clock (a
+    socket, another thread) while it was left out of phase 0; include it in the next phase 0."""
 
 
 # --- control -----------------------------------------------------------------------------------
@@ -274,6 +299,7 @@ Message = Annotated[
     | BeginTick1
     | Deliver
     | EndTick1
+    | Wake
     | Bye
     | Error,
     "any channel message",

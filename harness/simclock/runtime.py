@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from types import FrameType
 
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +108,13 @@ class SimRuntime:
         self.stats = PhaseStats()
         self.inbox: collections.deque[Delivery] = collections.deque()
         self._inbox_waiters: list[Waiter] = []
+        self._inbox_callbacks: dict[int, Callable[[], None]] = {}
+        self._next_token = 0
         self.closed = False
+        self.request_phase: Callable[[], None] | None = None
+        """Called (once between two phases) when script work became ready outside phase 0 on the wall
+        clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
+        self._wake_requested = False
 
     # -- reading the clock (any thread) --------------------------------------------------------
 
@@ -119,8 +126,12 @@ class SimRuntime:
 
     # -- the clock thread ----------------------------------------------------------------------
 
-    def run_phase(self, t_ns: int, idle_poll_s: float = 0.001) -> None:
-        """One phase 0 at sim time ``t_ns``: wake what is due, run until idle. Clock thread only."""
+    def run_phase(self, t_ns: int, idle_poll_s: float = 0.001) -> tuple[int, bool]:
+        """One phase 0 at sim time ``t_ns``: wake what is due, run until idle. Clock thread only.
+
+        Returns the lookahead for END-TICK-0: the earliest deadline of a timed wait (``NO_DEADLINE`` when
+        there is none) and whether a delivered packet would wake a waiting thread.
+        """
         start = real_monotonic_ns()
         with self._mu:
             if t_ns < self._now_ns:
@@ -141,6 +152,8 @@ class SimRuntime:
             with self._mu:
                 if self._all_idle_locked():
                     self._gate_open = False
+                    self._wake_requested = False
+                    lookahead = self._lookahead_locked()
                     break
             self._signal.acquire(True, idle_poll_s)
             if real_monotonic_ns() > report_at:
@@ -154,6 +167,13 @@ class SimRuntime:
         self.stats.phases += 1
         self.stats.last_phase_wall_ns = real_monotonic_ns() - start
         self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
+        return lookahead
+
+    def _lookahead_locked(self) -> tuple[int, bool]:
+        if self._gate_waiters:
+            return EVERY_PHASE, True
+        deadlines = [w.deadline_ns for w in self._timed if not w.released and w.deadline_ns is not None]
+        return min(deadlines, default=NO_DEADLINE), bool(self._inbox_waiters or self._inbox_callbacks)
 
     def busy_threads(self) -> list[str]:
         """Where every thread that keeps phase 0 from ending is (diagnostics)."""
@@ -166,12 +186,31 @@ class SimRuntime:
         return out
 
     def deliver(self, d: Delivery) -> None:
-        """A packet from the network (clock thread, between phases): wake ``receive`` waiters."""
+        """A packet from the network (clock thread, between phases): wake ``receive`` waiters.
+
+        No WAKE is needed: the channel itself includes a mission that waits on its inbox in the next
+        phase 0 when it routes a DELIVER to it (``deliver_wakes`` of END-TICK-0).
+        """
         with self._mu:
             self.inbox.append(d)
             waiters, self._inbox_waiters = self._inbox_waiters, []
             for w in waiters:
-                self._release_locked(w)
+                self._release_locked(w, wake=False)
+            callbacks = list(self._inbox_callbacks.values())
+        for cb in callbacks:
+            cb()
+
+    def add_inbox_callback(self, cb: Callable[[], None]) -> int:
+        """Call ``cb`` (on the clock thread) when a packet is delivered; counts as waiting on the inbox.
+        Returns a token for :meth:`remove_inbox_callback` (``receive_async`` wakes its event loop this way)."""
+        with self._mu:
+            self._next_token += 1
+            self._inbox_callbacks[self._next_token] = cb
+            return self._next_token
+
+    def remove_inbox_callback(self, token: int) -> None:
+        with self._mu:
+            self._inbox_callbacks.pop(token, None)
 
     def close(self) -> None:
         """The run is over: release every wait so nothing blocks forever."""
@@ -262,6 +301,8 @@ class SimRuntime:
         with self._mu:
             if not w.released:
                 self._gate_waiters.append(w)
+                if self._started:
+                    self._want_phase_locked()
         w.lock.acquire()
         self.finish_wait(w)
 
@@ -314,13 +355,15 @@ class SimRuntime:
             except RuntimeError:
                 pass
 
-    def _release_locked(self, w: Waiter) -> None:
+    def _release_locked(self, w: Waiter, wake: bool = True) -> None:
         """Mark ``w``'s thread busy and let it run. Only while the gate is open (or at close)."""
         if w.released:
             return
         if not self._gate_open:
             if w not in self._gate_waiters:
                 self._gate_waiters.append(w)
+                if wake:
+                    self._want_phase_locked()
             return
         w.released = True
         self._idle.pop(w.ident, None)
@@ -328,6 +371,11 @@ class SimRuntime:
             w.wake()
         else:
             self._unlock(w)
+
+    def _want_phase_locked(self) -> None:
+        if not self._wake_requested and self.request_phase is not None:
+            self._wake_requested = True
+            self.request_phase()
 
     @staticmethod
     def _unlock(w: Waiter) -> None:

@@ -173,3 +173,45 @@ def test_secret_required_off_loopback_and_checked() -> None:
         ok.close()
     finally:
         ch.stop()
+
+
+def test_mission_that_leaves_while_packets_are_queued_for_it_exits_with_its_code() -> None:
+    """A mission sends BYE and closes while DELIVERs for it are still unread: its socket resets, and the
+    channel's next send to it fails. The channel must still read the BYE (exit code 0), not report the
+    mission as dropped (seen once in a 10-vehicle run: 'connection broke while sending: Broken pipe')."""
+    ch = Channel(ChannelConfig(phase_every=1, stall_timeout_s=5))
+    ch.attach_physics()
+    ch.attach_local_autopilots([0], lambda m: p.EndTickAC(m.t_ns, 0, (0.0, 0.0, 0.0, 0.0)))
+
+    def network() -> None:
+        with ChannelClient.connect(ch.address, p.PeerKind.TYPE1, "net") as c:
+            while True:
+                for msg in c.recv():
+                    if isinstance(msg, p.BeginTick1):
+                        pk = p.Packet(msg.t_ns, -1, 0, 1, 0, b"x" * 100)
+                        c.send_many([p.Deliver(msg.t_ns, pk), p.Deliver(msg.t_ns, pk), p.EndTick1(msg.t_ns)])
+                    elif isinstance(msg, p.Bye):
+                        return
+
+    def mission() -> None:
+        c = ChannelClient.connect(ch.address, p.PeerKind.TYPE0, "leaver", vehicle=0)
+        first = c.recv_one()
+        assert isinstance(first, p.BeginTick0)
+        c.send(p.EndTick0(first.t_ns))
+        c.sock.recv(1, socket.MSG_PEEK)  # the DELIVERs of tick 0 have arrived; leave without reading them
+        c.close("script exited with 0", 0)
+
+    threads = [threading.Thread(target=f, daemon=True) for f in (network, mission)]
+    for th in threads:
+        th.start()
+    try:
+        assert ch.wait_for(lambda subs: len(subs) == 2, 10)
+        ch.step([p.BeginTickAC(0, 0, 0, 1, (0.0, 0.0, 0.0), b"")])
+        threads[1].join(5)
+        time.sleep(0.05)  # the reset has reached the channel's socket
+        for k in range(1, 4):
+            ch.step([p.BeginTickAC(k * 4_000_000, k, 0, 1, (0.0, 0.0, 0.0), b"")])
+        assert [(e.peer, e.exit_code) for e in ch.mission_exits] == [("leaver", 0)]
+        assert ch.faults == []
+    finally:
+        ch.close()
