@@ -6,6 +6,7 @@ import asyncio
 import datetime
 import json
 import queue
+import socket
 import threading
 import time
 
@@ -116,3 +117,59 @@ def test_patching_is_reversible_and_idempotent() -> None:
     assert (time.time, time.monotonic, time.sleep, datetime.datetime, threading.Condition.wait) == originals
     assert asyncio.get_event_loop_policy() is policy
     assert abs(time.time() - datetime.datetime.now().timestamp()) < 1
+
+
+def _phases_of(ch: Channel, name_part: str) -> int:
+    return sum(1 for _, event, _, peer in ch.trace if event == "et0" and name_part in peer)
+
+
+def test_lookahead_skips_idle_phases_and_every_wait_still_ends_on_time(procs: Procs) -> None:
+    """A mission tells the channel its next timed wait (END-TICK-0 ``idle_until_ns``): it is left out of the
+    phases in between, and its sleeps still end at the same phase as without lookahead."""
+    ch = Channel(ChannelConfig(stall_timeout_s=30, phase_every=PHASE_EVERY, tick_hz=TICK_HZ, trace=True)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        mission = procs.mission(ch.address, "sleep_steps.py")
+        procs.driver("type0", ch.address, "--vehicle", "0", name="every-phase")
+        wait_until(lambda: len(ch.subscribers()) == 3, what="subscribers joined")
+        ticks = int(3.0 * TICK_HZ)
+        run_fake_physics(ch.address, 1, ticks, tick_hz=TICK_HZ)
+        stdout, stderr = mission.communicate(timeout=30)
+        assert mission.returncode == 0, stderr
+        assert json.loads(stdout) == pytest.approx([0.5, 1.0, 1.5, 2.0], abs=PHASE_PERIOD_S)
+        phase_ticks = ticks // PHASE_EVERY
+        assert _phases_of(ch, "every-phase") == phase_ticks  # a subscriber without lookahead: every phase
+        assert _phases_of(ch, "sleep_steps") <= 8  # first phase, four wake-ups, the exit: not 150
+    finally:
+        ch.stop()
+
+
+def test_wall_clock_io_wakes_a_mission_left_out_by_its_lookahead(procs: Procs) -> None:
+    """A script waiting on a socket with no timeout has no deadline: the channel leaves it out of phase 0
+    until the datagram arrives (on the wall clock) and the mission's WAKE brings it back."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    ch = Channel(ChannelConfig(stall_timeout_s=30, phase_every=PHASE_EVERY, tick_hz=TICK_HZ, trace=True)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        mission = procs.mission(ch.address, "wait_datagram.py", str(port))
+        wait_until(lambda: len(ch.subscribers()) == 2, what="subscribers joined")
+        physics = threading.Thread(
+            target=run_fake_physics, args=(ch.address, 1, int(4.0 * TICK_HZ)), kwargs={"speed": 2.0}, daemon=True
+        )
+        physics.start()
+        wait_until(lambda: ch.ticks_done >= int(1.0 * TICK_HZ), what="1 s of sim time")
+        idle_phases = _phases_of(ch, "wait_datagram")
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.sendto(b"hello", ("127.0.0.1", port))
+        sent_at_s = ch.ticks_done / TICK_HZ
+        stdout, stderr = mission.communicate(timeout=30)
+        physics.join(30)
+        assert mission.returncode == 0, stderr
+        r = json.loads(stdout)
+        assert r["payload"] == "hello"
+        assert sent_at_s <= r["at_s"] < sent_at_s + 0.2  # handled within a few phases of its arrival
+        assert idle_phases <= 3  # while it waited, it was left out (1 s = 50 phases)
+    finally:
+        ch.stop()
