@@ -98,6 +98,8 @@ class SensorModel:
         self.rng = rng
         self.tick_ns = tick_ns
         self.mag_ned = mag_ned_gauss
+        self._noise: list[float] = []
+        self._noise_at = 0
         on = 1.0 if cfg.noise else 0.0
         self._on = on
         self.accel_bias = [on * b for b in cfg.accel_bias_m_s2]
@@ -120,6 +122,16 @@ class SensorModel:
         self._gps_a = math.exp(-gps_dt / cfg.gps_error_tau_s)
         self._gps_b = math.sqrt(1.0 - self._gps_a**2) * on
 
+    def _normals(self, n: int) -> list[float]:
+        """The next ``n`` standard normal draws of this vehicle's stream. Drawn from the generator in blocks
+        (one numpy call per 4096 values instead of several per tick): same seed, same sequence."""
+        at = self._noise_at
+        if at + n > len(self._noise):
+            self._noise = self.rng.standard_normal(4096).tolist()
+            at = 0
+        self._noise_at = at + n
+        return self._noise[at : at + n]
+
     def sample(
         self,
         t_ns: int,
@@ -132,7 +144,7 @@ class SensorModel:
         vel_ned_m_s: Vec3,
     ) -> tuple[Imu, Mag | None, Baro | None, Gps | None]:
         cfg, on = self.cfg, self._on
-        z = self.rng.standard_normal(12).tolist()  # a fixed number of draws per tick keeps the streams aligned
+        z = self._normals(12)  # a fixed number of draws per tick keeps the streams aligned
         ab, gb = self.accel_bias, self.gyro_bias
         for i in range(3):
             ab[i] += self._walk_accel * (z[i])
@@ -143,23 +155,17 @@ class SensorModel:
             (sf[0] + ab[0] + an * (z[6]), sf[1] + ab[1] + an * (z[7]), sf[2] + ab[2] + an * (z[8])),
             (w[0] + gb[0] + gn * (z[9]), w[1] + gb[1] + gn * (z[10]), w[2] + gb[2] + gn * (z[11])),
         )
-        self.baro_bias_m += self._walk_baro * float(self.rng.standard_normal())
+        self.baro_bias_m += self._walk_baro * self._normals(1)[0]
         mag = baro = gps = None
         if t_ns >= self._next_mag:
             self._next_mag += self._mag_period
             m = rotate_ned_to_body(q, self.mag_ned)
-            mz = self.rng.standard_normal(3)
+            mz = self._normals(3)
             mn, mb = cfg.mag_noise_gauss * on, cfg.mag_bias_gauss
-            mag = Mag(
-                (
-                    m[0] + on * mb[0] + mn * float(mz[0]),
-                    m[1] + on * mb[1] + mn * float(mz[1]),
-                    m[2] + on * mb[2] + mn * float(mz[2]),
-                )
-            )
+            mag = Mag((m[0] + on * mb[0] + mn * mz[0], m[1] + on * mb[1] + mn * mz[1], m[2] + on * mb[2] + mn * mz[2]))
         if t_ns >= self._next_baro:
             self._next_baro += self._baro_period
-            measured_alt = alt_amsl_m + self.baro_bias_m + cfg.baro_noise_m * on * float(self.rng.standard_normal())
+            measured_alt = alt_amsl_m + self.baro_bias_m + cfg.baro_noise_m * on * self._normals(1)[0]
             pressure = isa_pressure_pa(measured_alt)
             baro = Baro(pressure, 15.0 - 0.0065 * alt_amsl_m, isa_altitude_m(pressure))
         self._history.append(_GpsSample(t_ns, lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s))
@@ -168,10 +174,10 @@ class SensorModel:
         if t_ns >= self._next_gps:
             self._next_gps += self._gps_period
             old = self._history[0]
-            gz = self.rng.standard_normal(6)
+            gz = self._normals(6)
             e = self._gps_err
             for i in range(3):
-                e[i] = self._gps_a * e[i] + self._gps_b * float(gz[i])
+                e[i] = self._gps_a * e[i] + self._gps_b * gz[i]
             rm = 6371000.0
             vn = cfg.gps_vel_noise_m_s * on
             gps = Gps(
@@ -179,9 +185,9 @@ class SensorModel:
                 old.lon_deg + math.degrees(e[1] * cfg.gps_noise_m / (rm * math.cos(math.radians(old.lat_deg)))),
                 old.alt_amsl_m + e[2] * cfg.gps_alt_noise_m,
                 (
-                    old.vel_ned_m_s[0] + vn * float(gz[3]),
-                    old.vel_ned_m_s[1] + vn * float(gz[4]),
-                    old.vel_ned_m_s[2] + vn * float(gz[5]),
+                    old.vel_ned_m_s[0] + vn * gz[3],
+                    old.vel_ned_m_s[1] + vn * gz[4],
+                    old.vel_ned_m_s[2] + vn * gz[5],
                 ),
                 cfg.gps_fix_type,
                 max(0.5, cfg.gps_noise_m * 2.0),

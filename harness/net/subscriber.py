@@ -72,7 +72,10 @@ def serve(client: ChannelClient, model: NetworkModel, events: IO[str] | None = N
             if isinstance(msg, p.BeginTick1):
                 positions = {vp.vehicle: vp.ned_m for vp in msg.positions}
                 result = model.step(msg.t_ns, msg.period_ns, positions, msg.packets)
-                out: list[p.Message] = [p.Deliver(d.at_ns, d.packet, d.rssi_dbm) for d in result.deliveries]
+                by_dst: dict[int, list[p.Deliver]] = {}
+                for d in result.deliveries:  # in arrival order, grouped by receiver: one frame each
+                    by_dst.setdefault(d.packet.dst, []).append(p.Deliver(d.at_ns, d.packet, d.rssi_dbm))
+                out: list[p.Message] = [p.DeliverMany(dst, tuple(ds)) for dst, ds in by_dst.items()]
                 out.append(p.EndTick1(msg.t_ns, lookahead_ns(model, msg.t_ns, msg.period_ns)))
                 client.send_many(out)
                 if events is not None:

@@ -62,6 +62,13 @@ class ChannelConfig:
     """Unix time of sim time zero, told to every peer; 0 means the wall time at start."""
     trace: bool = False
     """Record (wall ns, event, tick, peer) for every phase transition (tests, debugging)."""
+    overlap_phase1: bool = True
+    """Root only. True: END-TICK-AC go back to physics as soon as phase 0 and the autopilots are done, and
+    phase 1 (the network simulating the interval with the positions of its tick) runs while physics
+    integrates the next ticks; the next phase 0 starts only when every END-TICK-1 is in. Nothing inside the
+    simulation can tell the difference: missions are not running then, and the network saw only its
+    tick's positions. False: the paper's strict order (physics waits for every END-TICK-1), which is also what
+    happens while a child channel takes part in the phase."""
 
     def __post_init__(self) -> None:
         if self.tick_hz <= 0:
@@ -178,6 +185,8 @@ class Channel:
         self._phase0_started = False
         self._phase0_done = False
         self._phase1_started = False
+        self._p1_t_ns = -1
+        """Sim time of the last phase 1 started (it may still run while physics goes on: ``overlap_phase1``)."""
         self._wait0: set[_Peer] = set()
         self._wait1: set[_Peer] = set()
         self._wait_ac: dict[_Peer, set[int]] = {}
@@ -322,8 +331,11 @@ class Channel:
         try:
             if begin_ticks and begin_ticks[0].tick % self.config.phase_every == 0:
                 # A tick whose autopilots are all in this process completes without waiting for a socket;
-                # read what came in between (WAKE of a mission left out by its lookahead, BYE, HELLO).
+                # read what came in between (WAKE of a mission left out by its lookahead, BYE, HELLO), and
+                # let the phase 1 that ran beside physics end before this phase 0 begins.
                 self._poll_once(0.0)
+                while self._wait1:
+                    self._poll_once(self._next_timeout())
             for m in begin_ticks:
                 self._on_upstream(m)
             while self._tick_result is None:
@@ -573,7 +585,7 @@ class Channel:
             peer.woken = True
         elif isinstance(msg, p.Enqueue):
             self._on_enqueue(peer, msg)
-        elif isinstance(msg, p.Deliver):
+        elif isinstance(msg, p.Deliver | p.DeliverMany):
             self._route_deliver(msg, source=peer)
         elif isinstance(msg, p.Announce):
             peer.vehicles = set(msg.vehicles)
@@ -591,7 +603,7 @@ class Channel:
 
     def _on_phase_end(self, peer: _Peer, t_ns: int, waiting: set[_Peer], phase: str) -> None:
         """END-TICK-0 / END-TICK-1: ``peer`` is done with this tick's phase (and only then may say so)."""
-        if peer not in waiting or t_ns != self._t_ns:
+        if peer not in waiting or t_ns != (self._p1_t_ns if phase == "1" else self._t_ns):
             self._peer_fault(peer, f"sent END-TICK-{phase} for t={t_ns} ns out of phase", p.ErrorCode.UNEXPECTED)
             return
         waiting.discard(peer)
@@ -634,8 +646,8 @@ class Channel:
         else:
             self._peer_fault(peer, f"left the run ({msg.reason or 'no reason given'})", p.ErrorCode.PEER_LOST)
 
-    def _route_deliver(self, msg: p.Deliver, source: _Peer | None) -> None:
-        dst = msg.packet.dst
+    def _route_deliver(self, msg: p.Deliver | p.DeliverMany, source: _Peer | None) -> None:
+        dst = msg.dst if isinstance(msg, p.DeliverMany) else msg.packet.dst
         routes = self._routes
         if routes is None:
             routes = {}
@@ -671,7 +683,7 @@ class Channel:
             self._start_phase0()
         elif isinstance(msg, p.BeginTick1):
             self._start_phase1(msg)
-        elif isinstance(msg, p.Deliver):
+        elif isinstance(msg, p.Deliver | p.DeliverMany):
             self._route_deliver(msg, source=self._up)
         elif isinstance(msg, p.Bye):
             log.info("channel %s: upstream left (%s)", self.config.name, msg.reason or "end of run")
@@ -698,8 +710,8 @@ class Channel:
         self._etas_sent_up = False
         is_root = self._up is not None and self._up.kind == p.PeerKind.PHYSICS
         self._phase_tick = is_root and tick % self.config.phase_every == 0
-        if self._phase_tick:
-            self._start_phase0()
+        if self._phase_tick and not self._wait1:
+            self._start_phase0()  # else when the phase 1 still running ends (_progress)
 
     def _route_ticks(self) -> None:
         """Forward this tick's BEGIN-TICK-AC to the holders of the vehicles, with per-holder counts."""
@@ -767,6 +779,7 @@ class Channel:
 
     def _start_phase1(self, parent_msg: p.BeginTick1 | None) -> None:
         self._phase1_started = True
+        self._p1_t_ns = self._t_ns
         carrying = bool(parent_msg.packets if parent_msg is not None else self._packets)
         t = self._t_ns
         peers = [
@@ -794,6 +807,8 @@ class Channel:
         """Advance the tick state machine as far as the answers received allow."""
         if not self._in_tick:
             return
+        if self._phase_tick and not self._phase0_started and not self._wait1:
+            self._start_phase0()  # the previous phase 1 has just ended
         if self._bta and not self._routed and len(self._bta) >= self._bta_count:
             self._route_ticks()
         acs_done = self._routed and not self._wait_ac
@@ -816,9 +831,14 @@ class Channel:
                 return
             if not self._phase1_started:
                 self._start_phase1(None)
-            if self._wait1:
+            if self._wait1 and not self._may_overlap_phase1():
                 return
         self._finish_tick()
+
+    def _may_overlap_phase1(self) -> bool:
+        """Physics may go on while phase 1 runs (``overlap_phase1``), but not while a child channel is in it:
+        a child takes the next BEGIN-TICK-AC only once its tick, phase 1 included, is over."""
+        return self.config.overlap_phase1 and all(peer.kind != p.PeerKind.CHILD for peer in self._wait1)
 
     def _progress_child(self, acs_done: bool) -> None:
         if acs_done and not self._etas_sent_up and self._bta:

@@ -99,6 +99,38 @@ def _patch_grpc(vehicle_port: int) -> None:
     System.__init__ = __init__
     System.connect = connect
     System._harness_patched = True
+    _hold_phase_during_requests()
+
+
+def _hold_phase_during_requests() -> None:
+    """A MAVSDK request (arm, takeoff, set a setpoint, upload a mission: every unary gRPC call to
+    mavsdk_server) keeps the script's phase 0 open until its answer is back, so it takes no sim time.
+
+    mavsdk_server answers on the wall clock once the autopilot has acknowledged (the autopilot's MAVLink
+    side answers within milliseconds of wall time, whatever the sim does). Without the hold, the sim would
+    run on while the request travels — at x50 a 20 ms round trip is a whole second of sim time, so an
+    offboard stop or a mode change would take effect at a place that depends on the machine's speed.
+    Streams (telemetry subscriptions) do not hold: they wait for the sim.
+    """
+    from grpc.aio import _channel
+
+    from harness.simclock.runtime import current
+
+    callable_cls: Any = _channel.UnaryUnaryMultiCallable
+    if getattr(callable_cls, "_harness_holds", False):
+        return
+    orig_call = callable_cls.__call__
+
+    def __call__(self: Any, *a: Any, **kw: Any) -> Any:
+        call = orig_call(self, *a, **kw)
+        rt = current()
+        if rt is not None and rt._tracked():
+            rt.hold()
+            call.add_done_callback(lambda _call: rt.unhold())
+        return call
+
+    callable_cls.__call__ = __call__
+    callable_cls._harness_holds = True
 
 
 def _patch_native(vehicle_port: int) -> None:

@@ -65,8 +65,9 @@ class _ClockThread(threading.Thread):
                         out.append(p.EndTick0(msg.t_ns, idle_until, deliver_wakes))
                         self.client.send_many(out)
                     elif isinstance(msg, p.Deliver):
-                        pk = msg.packet
-                        self.rt.deliver(Delivery(msg.at_ns, pk.src, pk.dst, pk.port, pk.payload, msg.rssi_dbm))
+                        self.rt.deliver([_delivery(msg)])
+                    elif isinstance(msg, p.DeliverMany):
+                        self.rt.deliver([_delivery(d) for d in msg.delivers])
                     elif isinstance(msg, p.Bye):
                         self._end(f"the simulation ended ({msg.reason or 'no reason given'})")
                         return
@@ -89,6 +90,11 @@ class _ClockThread(threading.Thread):
         # Give the script a moment to finish on its own (its waits were all released), then end it.
         real_sleep(2.0)
         _exit(EXIT_RUN_ENDED)
+
+
+def _delivery(msg: p.Deliver) -> Delivery:
+    pk = msg.packet
+    return Delivery(msg.at_ns, pk.src, pk.dst, pk.port, pk.payload, msg.rssi_dbm)
 
 
 def _children(pid: int) -> list[int]:

@@ -28,7 +28,7 @@ One tick (see DESIGN.md, "The tick")::
     type 0   -> channel   ENQUEUE(...)*  then  END-TICK-0(t)                   (Enqueue, EndTick0)
     autopilot-> channel   END-TICK-AC(t, vehicle, motors)                      (EndTickAC)
     channel  -> type 1    BEGIN-TICK-1(t, positions, packets)  phase 1 starts  (BeginTick1)
-    type 1   -> channel   DELIVER(...)*  then  END-TICK-1(t)                   (Deliver, EndTick1)
+    type 1   -> channel   DELIVER(...)*  then  END-TICK-1(t)                   (Deliver or DeliverMany, EndTick1)
     channel  -> type 0    DELIVER (routed to the addressed vehicle's missions)
     channel  -> physics   END-TICK-AC for every vehicle                        (forwarded)
 
@@ -251,6 +251,14 @@ class Deliver(_Msg, tag="DLV", frozen=True):
     rssi_dbm: float = 0.0
 
 
+class DeliverMany(_Msg, tag="DLVS", frozen=True):
+    """Several DELIVERs for the missions of one vehicle ``dst`` in one frame: a network simulator groups the
+    arrivals of an interval by receiver, so a swarm's broadcasts cost one frame per receiver, not per packet."""
+
+    dst: int
+    delivers: tuple[Deliver, ...]
+
+
 class EndTick1(_Msg, tag="ET1", frozen=True):
     """END-TICK-1: type-1 -> channel: the interval is simulated, every DELIVER of it was sent.
 
@@ -298,6 +306,7 @@ Message = Annotated[
     | Enqueue
     | BeginTick1
     | Deliver
+    | DeliverMany
     | EndTick1
     | Wake
     | Bye

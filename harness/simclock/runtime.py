@@ -115,6 +115,7 @@ class SimRuntime:
         """Called (once between two phases) when script work became ready outside phase 0 on the wall
         clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
         self._wake_requested = False
+        self._holds = 0
 
     # -- reading the clock (any thread) --------------------------------------------------------
 
@@ -178,21 +179,22 @@ class SimRuntime:
     def busy_threads(self) -> list[str]:
         """Where every thread that keeps phase 0 from ending is (diagnostics)."""
         with self._mu:
-            return [f"{t.name} at {where}" for t, where in self._busy_locked()]
+            held = [f"{self._holds} request(s) to mavsdk_server in flight"] if self._holds else []
+            return held + [f"{t.name} at {where}" for t, where in self._busy_locked()]
 
     def take_outbox(self) -> list[_Outgoing]:
         with self._mu:
             out, self.stats.outbox = self.stats.outbox, []
         return out
 
-    def deliver(self, d: Delivery) -> None:
-        """A packet from the network (clock thread, between phases): wake ``receive`` waiters.
+    def deliver(self, ds: list[Delivery]) -> None:
+        """Packets from the network (clock thread, between phases): wake ``receive`` waiters.
 
         No WAKE is needed: the channel itself includes a mission that waits on its inbox in the next
         phase 0 when it routes a DELIVER to it (``deliver_wakes`` of END-TICK-0).
         """
         with self._mu:
-            self.inbox.append(d)
+            self.inbox.extend(ds)
             waiters, self._inbox_waiters = self._inbox_waiters, []
             for w in waiters:
                 self._release_locked(w, wake=False)
@@ -328,10 +330,15 @@ class SimRuntime:
         (None: until one comes); None on timeout or when the run is over. Script threads only."""
         deadline = None if timeout_s is None else self._now_ns + round(timeout_s * NS_PER_S)
         while True:
-            for d in list(self.inbox):  # deliveries only arrive between phases, never while this runs
-                if port is None or d.port == port:
-                    self.inbox.remove(d)
-                    return d
+            inbox = self.inbox  # deliveries only arrive between phases, never while this runs
+            if port is None:
+                if inbox:
+                    return inbox.popleft()
+            else:
+                for i, d in enumerate(inbox):
+                    if d.port == port:
+                        del inbox[i]
+                        return d
             if self.closed or (deadline is not None and self._now_ns >= deadline):
                 return None
             w = self.new_waiter(deadline_ns=deadline, inbox=True)
@@ -409,8 +416,18 @@ class SimRuntime:
             self._script_threads[ident] = known
         return known
 
+    def hold(self) -> None:
+        """Keep the current phase 0 open (a request to a local service is in flight; see ``mavsdk_compat``)."""
+        with self._mu:
+            self._holds += 1
+
+    def unhold(self) -> None:
+        with self._mu:
+            self._holds = max(0, self._holds - 1)
+        self._poke()
+
     def _all_idle_locked(self) -> bool:
-        return not self._busy_locked(first_only=True)
+        return not self._holds and not self._busy_locked(first_only=True)
 
     def _busy_locked(self, first_only: bool = False) -> list[tuple[threading.Thread, str]]:
         busy: list[tuple[threading.Thread, str]] = []
