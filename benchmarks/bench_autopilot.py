@@ -5,8 +5,10 @@ Run: ``.venv/bin/python benchmarks/bench_autopilot.py [--seconds 20] [--vehicles
 Every vehicle arms, takes off to 5 m with its sensor-based estimator and hovers; the measured window
 starts once all are hovering. Figures:
 - in-process loop (Physics.step + Autopilot.step, no sockets): autopilot and physics µs per vehicle-tick, RTF;
-- through the lockstep channel (TCP loopback): physics client in this process, autopilots in separate
-  processes — one host process for all vehicles, and one process per vehicle — RTF of each layout.
+- lockstep (the shipped layout of ``harness run``): the same through the root channel in the physics process,
+  autopilots stepped by it in-process, phases every 5th tick — RTF (targets: >= 50x for 1, >= 5x for 10);
+- through the lockstep channel (TCP loopback; not with ``--no-channel``): autopilots in separate processes —
+  one host process for all vehicles, and one process per vehicle — RTF of each layout.
 Numbers are wall-clock on a shared machine: noisy when other work runs.
 """
 
@@ -73,6 +75,44 @@ def in_process(n: int, seconds: float) -> dict[str, float]:
         "min_alt_m": min(alts),
         "max_alt_m": max(alts),
     }
+
+
+def with_lockstep_core(n: int, seconds: float) -> dict[str, float]:
+    """The shipped layout of ``harness run``: physics owns the root channel (``attach_physics``) and steps the
+    autopilots inside its process through it (``NativeLink``, ``attach_local_autopilots``) with the shipped
+    phase period (every 5th tick); no missions or network are attached, so phases are empty."""
+    from harness.fdm.link import NativeLink
+
+    tick_hz = round(RATES["tick_hz"])
+    ch = Channel(ChannelConfig(tick_hz=tick_hz, phase_every=5, stall_timeout_s=30))
+    ch.attach_physics()
+    phys = _physics(n)
+    aps = {v: Autopilot(AutopilotConfig(vehicle=v)) for v in range(n)}
+    link = NativeLink(ch, aps)
+    frames = phys.frames()
+    try:
+        for ticks in range(1, tick_hz * 25):
+            etas = link.exchange(phys.t_ns, phys.tick, frames)
+            frames = phys.step([e.motors for e in etas])
+            if ticks % 25 == 0:
+                for ap in aps.values():
+                    if not ap.state().armed and ap.arming_check() == "":
+                        ap.arm()
+                        ap.takeoff(ALT_M)
+            if ticks > tick_hz * 3 and all(
+                ap.state().mode == FlightMode.HOLD and ap.state().armed for ap in aps.values()
+            ):
+                break
+        n_ticks = round(seconds * tick_hz)
+        t0 = time.perf_counter_ns()
+        for _ in range(n_ticks):
+            etas = link.exchange(phys.t_ns, phys.tick, frames)
+            frames = phys.step([e.motors for e in etas])
+        wall_ns = time.perf_counter_ns() - t0
+    finally:
+        ch.close("benchmark done")
+    alts = [-f.truth.pos_ned_m[2] for f in frames]
+    return {"rtf": seconds / (wall_ns / 1e9), "min_alt_m": min(alts), "max_alt_m": max(alts)}
 
 
 def through_channel(n: int, seconds: float, per_vehicle_process: bool) -> dict[str, float]:
@@ -147,6 +187,11 @@ def main() -> None:
             f"in-process  {n:3d} vehicle(s): autopilot {r['autopilot_us_per_vehicle_tick']:6.1f} us/vehicle/tick, "
             f"physics {r['physics_us_per_vehicle_tick']:6.1f} us/vehicle/tick, RTF {r['rtf']:7.1f}x "
             f"(alt {r['min_alt_m']:.2f}-{r['max_alt_m']:.2f} m)"
+        )
+        r = with_lockstep_core(n, args.seconds)
+        print(
+            f"lockstep    {n:3d} vehicle(s), shipped layout (root channel in physics, autopilots in-process): "
+            f"RTF {r['rtf']:7.1f}x (alt {r['min_alt_m']:.2f}-{r['max_alt_m']:.2f} m)"
         )
         if args.no_channel:
             continue

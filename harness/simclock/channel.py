@@ -180,7 +180,6 @@ class Channel:
         self._bta_count = 0
         self._routed = False
         self._etas: dict[int, p.EndTickAC] = {}
-        self._expect_vehicles: set[int] = set()
         self._phase_tick = False
         self._phase0_started = False
         self._phase0_done = False
@@ -336,6 +335,8 @@ class Channel:
                 self._poll_once(0.0)
                 while self._wait1:
                     self._poll_once(self._next_timeout())
+            elif self._local_only(begin_ticks):
+                return self._local_tick(begin_ticks)
             for m in begin_ticks:
                 self._on_upstream(m)
             while self._tick_result is None:
@@ -346,6 +347,30 @@ class Channel:
         result, self._tick_result = self._tick_result, None
         self._flush_dirty()
         return result
+
+    def _local_only(self, begin_ticks: list[p.BeginTickAC]) -> bool:
+        """A tick without phases whose vehicles all fly on in-process autopilots: nothing to wait for."""
+        local = self._local_autopilots
+        return bool(begin_ticks) and not self._in_tick and all(m.vehicle in local for m in begin_ticks)
+
+    def _local_tick(self, begin_ticks: list[p.BeginTickAC]) -> list[p.EndTickAC]:
+        """The same tick as the general path (BEGIN-TICK-AC to the autopilots, END-TICK-AC back), without
+        the bookkeeping that only subscribers and remote peers need: 4 ticks out of 5 in ``harness run``."""
+        first = begin_ticks[0]
+        if first.t_ns < self._t_ns:
+            raise _Fatal(f"upstream went back in time ({first.t_ns} ns < {self._t_ns} ns)")
+        self._t_ns, self._tick = first.t_ns, first.tick
+        local = self._local_autopilots
+        etas = []
+        for m in begin_ticks:
+            eta = local[m.vehicle](m)
+            if eta.t_ns != m.t_ns or eta.vehicle != m.vehicle:
+                raise _Fatal(f"in-process autopilot of vehicle {m.vehicle} answered for {eta.vehicle} at {eta.t_ns}")
+            etas.append(eta)
+        etas.sort(key=_by_vehicle)
+        self._trace("eta_up", None)
+        self.ticks_done += 1
+        return etas
 
     def close(self, reason: str = "end of run") -> None:
         """End the run for a local physics: tell every peer and close everything."""
@@ -704,7 +729,7 @@ class Channel:
         self._in_tick = True
         self._t_ns, self._tick = t_ns, tick
         self._bta, self._bta_count, self._routed = [], 0, False
-        self._etas, self._expect_vehicles = {}, set()
+        self._etas = {}
         self._packets, self._positions = [], {}
         self._phase0_started = self._phase0_done = self._phase1_started = False
         self._etas_sent_up = False
@@ -743,7 +768,6 @@ class Channel:
             n = len(msgs)
             data = p.encode_many([m if m.count == n else _with_count(m, n) for m in msgs])
             self._wait_ac[peer] = {m.vehicle for m in msgs}
-            self._expect_vehicles |= self._wait_ac[peer]
             self._set_deadline(peer, now + int(self.config.stall_timeout_s * NS_PER_S))
             peer.waiting_for = f"END-TICK-AC of tick {self._tick}"
             self._send_raw(peer, data)
@@ -753,7 +777,6 @@ class Channel:
             if eta.t_ns != m.t_ns or eta.vehicle != m.vehicle:
                 raise _Fatal(f"in-process autopilot of vehicle {m.vehicle} answered for {eta.vehicle} at {eta.t_ns}")
             self._etas[m.vehicle] = eta
-            self._expect_vehicles.add(m.vehicle)
 
     def _start_phase0(self) -> None:
         if self._phase0_started:
@@ -1016,6 +1039,10 @@ class Channel:
     def raise_if_failed(self) -> None:
         if self.failure:
             raise SimulationError(self.failure)
+
+
+def _by_vehicle(eta: p.EndTickAC) -> int:
+    return eta.vehicle
 
 
 def _with_count(m: p.BeginTickAC, n: int) -> p.BeginTickAC:
