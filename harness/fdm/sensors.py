@@ -9,6 +9,7 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -16,6 +17,23 @@ from harness.errors import ScenarioError
 from harness.fdm.frame import Baro, Gps, Imu, Mag, Vec3
 
 Quat = tuple[float, float, float, float]
+
+
+GPS_PROFILES: dict[str, dict[str, float]] = {
+    "px4-sitl": {"gps_noise_m": 0.026, "gps_alt_noise_m": 0.038, "gps_error_tau_s": 2.4},
+    "standalone": {"gps_noise_m": 0.3, "gps_alt_noise_m": 0.5, "gps_error_tau_s": 20.0},
+}
+"""GPS position error models (per-axis σ and correlation time of a Gauss-Markov error).
+
+- ``px4-sitl`` (default): what PX4's own SITL adds in Gazebo (``SensorGpsSim``, "based on u-blox F9P"):
+  centimetre level, decorrelating in about 2 s. Flights compare with PX4 SITL; a hover holds ±0.2 m.
+- ``standalone``: a single receiver without corrections, 0.3 m horizontal / 0.5 m vertical, wandering over
+  tens of seconds. Every GPS-based position hold (PX4's too) follows this error: a hover wanders about
+  ±0.4 m. Use it to test a mission's tolerance of real GPS.
+
+(PX4's older Gazebo-classic plugin adds about 3 mm; real standalone receivers are often worse than
+``standalone``, up to metres.)
+"""
 
 
 @dataclass(frozen=True)
@@ -40,13 +58,21 @@ class SensorConfig:
     baro_drift_m_sqrt_s: float = 0.005
     gps_rate_hz: float = 10.0
     gps_latency_s: float = 0.1
-    gps_noise_m: float = 0.3
-    """Horizontal position error, standard deviation of a slowly varying (τ = gps_error_tau_s) error."""
-    gps_alt_noise_m: float = 0.5
-    gps_error_tau_s: float = 20.0
+    gps_noise_m: float = 0.026
+    """Horizontal position error per axis: standard deviation of a first-order Gauss-Markov error with
+    correlation time ``gps_error_tau_s``. The defaults are the ``px4-sitl`` profile (:data:`GPS_PROFILES`)."""
+    gps_alt_noise_m: float = 0.038
+    gps_error_tau_s: float = 2.4
     gps_vel_noise_m_s: float = 0.05
     gps_fix_type: int = 3
     gps_satellites: int = 12
+
+    @classmethod
+    def for_gps(cls, profile: str, **overrides: Any) -> SensorConfig:
+        """The sensors with the GPS error of ``profile`` (a key of :data:`GPS_PROFILES`)."""
+        if profile not in GPS_PROFILES:
+            raise ScenarioError(f"sensors: unknown GPS profile {profile!r}; choose one of {sorted(GPS_PROFILES)}")
+        return cls(**(GPS_PROFILES[profile] | overrides))
 
     def __post_init__(self) -> None:
         for name in ("mag_rate_hz", "baro_rate_hz", "gps_rate_hz", "gps_error_tau_s"):

@@ -19,11 +19,25 @@ from typing import Any
 from harness.errors import ScenarioError
 from harness.scenario.launcher import LaunchPlan, MissionPlan
 
-_TOP = {"seed", "speed", "duration_s", "out", "world", "rates", "wind", "network", "vehicles", "channel", "mavlink"}
+_TOP = {
+    "seed",
+    "speed",
+    "duration_s",
+    "out",
+    "world",
+    "rates",
+    "wind",
+    "sensors",
+    "network",
+    "vehicles",
+    "channel",
+    "mavlink",
+}
 _SECTIONS: dict[str, set[str]] = {
     "world": {"lat_deg", "lon_deg", "alt_amsl_m"},
     "rates": {"physics_hz", "tick_hz", "phase_every"},
     "wind": {"north_m_s", "east_m_s", "down_m_s", "turbulence"},
+    "sensors": {"gps", "noise"},
     "network": {"model", "params"},
     "channel": {"stall_timeout_s"},
     "mavlink": {"api_port_base", "gcs_port"},
@@ -125,6 +139,7 @@ def load_scenario(path: str | Path, **overrides: Any) -> LaunchPlan:
     world = raw.get("world", {})
     rates = raw.get("rates", {})
     wind = raw.get("wind", {})
+    sensors = raw.get("sensors", {})
     net = raw.get("network", {})
     channel = raw.get("channel", {})
     mav = raw.get("mavlink", {})
@@ -171,6 +186,8 @@ def load_scenario(path: str | Path, **overrides: Any) -> LaunchPlan:
             ctx.number(wind.get("down_m_s", 0.0), "wind.down_m_s"),
         ),
         turbulence=_turbulence(ctx, wind.get("turbulence", 0.0)),
+        gps=_gps_profile(ctx, sensors.get("gps", "px4-sitl")),
+        sensor_noise=_boolean(ctx, sensors.get("noise", True), "sensors.noise"),
         spawn_ned_m=spawns,
         params=tuple(params),
         api_port_base=ctx.integer(mav.get("api_port_base", 14540), "mavlink.api_port_base", minimum=1),
@@ -178,6 +195,20 @@ def load_scenario(path: str | Path, **overrides: Any) -> LaunchPlan:
     )
     fields = {k: v for k, v in overrides.items() if v is not None}
     return _replace(plan, fields)
+
+
+def _gps_profile(ctx: _Ctx, value: Any) -> str:
+    from harness.fdm.sensors import GPS_PROFILES
+
+    if value not in GPS_PROFILES:
+        raise ctx.fail("sensors.gps", f"expected one of {sorted(GPS_PROFILES)}, got {value!r}")
+    return str(value)
+
+
+def _boolean(ctx: _Ctx, value: Any, field: str) -> bool:
+    if not isinstance(value, bool):
+        raise ctx.fail(field, f"expected true or false, got {type(value).__name__} {value!r}")
+    return value
 
 
 def _turbulence(ctx: _Ctx, value: Any) -> float:

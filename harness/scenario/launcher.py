@@ -65,6 +65,10 @@ class LaunchPlan:
     origin: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
     wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     turbulence: float = 0.0
+    gps: str = "px4-sitl"
+    """GPS error model, a key of ``harness.fdm.sensors.GPS_PROFILES``."""
+    sensor_noise: bool = True
+    """False: ideal sensors (rates and latency stay)."""
     spawn_ned_m: tuple[tuple[float, float, float], ...] | None = None
     params: tuple[dict[str, float], ...] = ()
     api_port_base: int = 14540
@@ -216,6 +220,7 @@ class Launcher:
 
     def run(self) -> RunResult:
         from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
+        from harness.fdm.sensors import SensorConfig
 
         plan = self.plan
         n = plan.vehicles
@@ -228,6 +233,7 @@ class Launcher:
                 origin=WorldOrigin(*plan.origin),
                 wind=WindConfig(steady_ned_m_s=plan.wind_ned_m_s, turbulence=plan.turbulence),
                 spawn_ned_m=plan.spawn_ned_m,
+                sensors=SensorConfig.for_gps(plan.gps, noise=plan.sensor_noise),
             )
         )
         channel = Channel(

@@ -29,9 +29,17 @@ def fdm_wind() -> Callable[..., Any]:
 
 
 @pytest.fixture
+def fdm_standalone_gps() -> Callable[..., Any]:
+    """A single receiver's GPS error (σ 0.3 m, wandering over 20 s) instead of the PX4-SITL default."""
+    mod = pytest.importorskip("harness.fdm.sensors")
+    return _physics(sensors=mod.SensorConfig.for_gps("standalone"))
+
+
+@pytest.fixture
 def fdm_white_gps() -> Callable[..., Any]:
-    mod = pytest.importorskip("harness.fdm.physics")
-    return _physics(sensors=mod.SensorConfig(gps_error_tau_s=0.1))
+    """The standalone error level (σ 0.3 m) decorrelating within 0.1 s."""
+    mod = pytest.importorskip("harness.fdm.sensors")
+    return _physics(sensors=mod.SensorConfig.for_gps("standalone", gps_error_tau_s=0.1))
 
 
 @pytest.fixture

@@ -37,6 +37,8 @@ def test_list_of_vehicles_and_command_line_overrides(tmp_path: Path) -> None:
     )
     plan = load_scenario(path, seed=9, duration_s=12.0)
     assert plan.vehicles == 2 and plan.seed == 9 and plan.duration_s == 12.0
+    assert plan.gps == "px4-sitl" and plan.sensor_noise  # the defaults
+    assert load_scenario(write(tmp_path, 'vehicles = 1\n[sensors]\ngps = "standalone"\n')).gps == "standalone"
     assert plan.missions[1] is None and plan.spawn_ned_m is not None and plan.spawn_ned_m[0] == (1.0, 2.0, 0.0)
 
 
@@ -53,6 +55,8 @@ def test_list_of_vehicles_and_command_line_overrides(tmp_path: Path) -> None:
         ("vehicles = 1\n[network]\nmodel = 'wifi'\n", "network.model", "must be 'builtin', 'ns3' or 'none'"),
         ("[[vehicles]]\nspawn_ned_m = [1, 2]\n", "vehicles[0].spawn_ned_m", "expected [north, east, down]"),
         ("vehicles = 1\n[wind]\nturbulence = 'hurricane'\n", "wind.turbulence", "expected a number or one of"),
+        ("vehicles = 1\n[sensors]\ngps = 'rtk-fixed'\n", "sensors.gps", "expected one of ['px4-sitl', 'standalone']"),
+        ("vehicles = 1\n[sensors]\nnoise = 'off'\n", "sensors.noise", "expected true or false"),
     ],
 )
 def test_errors_name_file_and_field_in_one_line(tmp_path: Path, text: str, field: str, why: str) -> None:
