@@ -1,29 +1,131 @@
 """Full-stack benchmark: real-time factor of `harness run` with physics, autopilots, the built-in network
 and one MAVSDK mission process per vehicle (`missions/hover.py`: take off, hover 30 s, land, broadcasting
-its position over the radio at 10 Hz and reading what the others send), at the shipped default rates
-(physics 1 kHz, control tick 250 Hz, phases 0/1 every 5th tick = 50 Hz).
+its position over the radio at 10 Hz and reading what every other vehicle sends), at the shipped default
+rates (physics 1 kHz, control tick 250 Hz, phases 0/1 every 5th tick = 50 Hz, i.e. a 20 ms phase-0 period).
 
-    .venv/bin/python benchmarks/bench_fullstack.py            # 1, 10 and 50 vehicles
-    .venv/bin/python benchmarks/bench_fullstack.py 1 10       # chosen sizes
+    .venv/bin/python benchmarks/bench_fullstack.py                 # 1, 10 and 50 vehicles
+    .venv/bin/python benchmarks/bench_fullstack.py 1 10 --repeat 3 # chosen sizes, median of 3 runs
+
+Figures per size:
+- RTF: sim time / wall time of the whole run, as ``summary.json`` reports it (start-up included);
+- flight RTF: the same from the first vehicle leaving the ground to the last one landing (from the tick
+  timing in ``world.mcap``): the rate while everything flies, without MAVSDK's start-up on the ground;
+- CPU seconds per process class (read from /proc while the run goes): ``harness run`` itself, the mission
+  processes, their ``mavsdk_server`` processes, the network process.
 
 Targets (issue 7, 2-core machine): >= 30x for 1 vehicle, >= 3x for 10, >= 0.5x for 50.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
-import time
+import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = {1: 30.0, 10: 3.0, 50: 0.5}
 BEACON_HZ = 10.0
+CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 
-def run(vehicles: int, hover_s: float) -> dict[str, float]:
+def _cpu_of(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+def _kind(pid: int, root: int) -> str:
+    if pid == root:
+        return "harness run"
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            cmd = f.read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+    if "mavsdk_server" in cmd:
+        return "mavsdk_server"
+    if " mission " in cmd:
+        return "missions"
+    if "net.subscriber" in cmd:
+        return "network"
+    return "other" if cmd else ""
+
+
+class CpuMeter:
+    """Samples the CPU time of a process tree every 0.2 s (the last reading of each process counts)."""
+
+    def __init__(self, root: int) -> None:
+        self.root = root
+        self.seen: dict[int, tuple[str, float]] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _children(self, pid: int) -> list[int]:
+        try:
+            with open(f"/proc/{pid}/task/{pid}/children") as f:
+                return [int(x) for x in f.read().split()]
+        except OSError:
+            return []
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            todo = [self.root]
+            while todo:
+                pid = todo.pop()
+                todo += self._children(pid)
+                try:
+                    cpu = _cpu_of(pid)
+                except (OSError, IndexError, ValueError):
+                    continue
+                kind = _kind(pid, self.root) or self.seen.get(pid, ("other", 0.0))[0]
+                self.seen[pid] = (kind, cpu)
+            self._stop.wait(0.2)
+
+    def stop(self) -> dict[str, float]:
+        self._stop.set()
+        self._thread.join()
+        out: dict[str, float] = {}
+        for kind, cpu in self.seen.values():
+            out[kind] = out.get(kind, 0.0) + cpu
+        return out
+
+
+def flight_rtf(out: Path) -> float:
+    """Sim time / wall time from the first vehicle off the ground to the last one back on it."""
+    from harness.record.world import read_topics
+
+    topics = read_topics(out / "world.mcap")
+    airborne = [
+        s["t_s"] for name, msgs in topics.items() if name.endswith("/state") for s in msgs if not s["on_ground"]
+    ]
+    if not airborne:
+        return 0.0
+    t0, t1 = min(airborne), max(airborne)
+    ticks = [(m["t_s"], m["wall_s"]) for m in topics.get("/sim/tick", []) if t0 <= m["t_s"] <= t1]
+    if len(ticks) < 2 or ticks[-1][1] <= ticks[0][1]:
+        return 0.0
+    return (ticks[-1][0] - ticks[0][0]) / (ticks[-1][1] - ticks[0][1])
+
+
+@dataclass
+class Result:
+    sim_s: float
+    wall_s: float
+    rtf: float
+    flight_rtf: float
+    ok: bool
+    cpu: dict[str, float]
+    out: Path
+
+
+def run(vehicles: int, hover_s: float) -> Result:
     out = Path(tempfile.mkdtemp(prefix=f"bench-fullstack-{vehicles}-"))
     cmd = [
         sys.executable,
@@ -42,33 +144,51 @@ def run(vehicles: int, hover_s: float) -> dict[str, float]:
         str(hover_s),
         str(BEACON_HZ),
     ]
-    start = time.monotonic()
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
-    wall = time.monotonic() - start
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    meter = CpuMeter(proc.pid)
+    _, err = proc.communicate(timeout=3600)
+    cpu = meter.stop()
     summary = json.loads((out / "summary.json").read_text())
     if proc.returncode != 0:
-        print(f"  run of {vehicles} failed ({summary.get('message')}); see {out}", file=sys.stderr)
-    return {
-        "sim_s": summary["sim_time_s"],
-        "wall_s": summary["wall_time_s"],
-        "rtf": summary["real_time_factor"],
-        "process_wall_s": wall,
-        "ok": float(proc.returncode == 0),
-    }
+        print(f"  run of {vehicles} failed ({summary.get('message')}); see {out}\n{err[-2000:]}", file=sys.stderr)
+    return Result(
+        summary["sim_time_s"],
+        summary["wall_time_s"],
+        summary["real_time_factor"],
+        flight_rtf(out),
+        proc.returncode == 0,
+        cpu,
+        out,
+    )
 
 
 def main() -> int:
-    sizes = [int(a) for a in sys.argv[1:]] or [1, 10, 50]
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("sizes", nargs="*", type=int, default=[1, 10, 50])
+    ap.add_argument("--repeat", type=int, default=1, help="runs per size; the median RTF is reported")
+    ap.add_argument("--hover", type=float, default=30.0, help="seconds of hover in the mission")
+    a = ap.parse_args()
     print(
         "full stack: JSBSim physics + autopilots + MAVLink + built-in network + 1 MAVSDK (gRPC API) mission per vehicle"
     )
-    print("rates: physics 1000 Hz, tick 250 Hz, phase 0/1 at 50 Hz; mission: takeoff, hover 30 s, land; 10 Hz beacons")
-    print(f"{'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'target':>7} {'ok':>3}")
-    for n in sizes:
-        r = run(n, 30.0)
-        target = TARGETS.get(n)
+    print(
+        f"rates: physics 1000 Hz, tick 250 Hz, phase 0/1 every 5th tick (20 ms); mission: takeoff, hover "
+        f"{a.hover:g} s, land; {BEACON_HZ:g} Hz radio beacons to every vehicle"
+    )
+    print(
+        f"{'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3}   "
+        "CPU s: harness run / missions / mavsdk_server / network"
+    )
+    for n in a.sizes:
+        runs = sorted((run(n, a.hover) for _ in range(a.repeat)), key=lambda x: x.rtf)
+        r = runs[len(runs) // 2]
+        spread = "  (runs: " + ", ".join(f"{x.rtf:.2f}" for x in runs) + ")" if a.repeat > 1 else ""
+        cpu = r.cpu
         print(
-            f"{n:>8} {r['sim_s']:>7.1f} {r['wall_s']:>7.1f} {r['rtf']:>6.1f}x {target or 0:>6.1f}x {int(r['ok']):>3}",
+            f"{n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {r.rtf:>6.2f}x {r.flight_rtf:>6.2f}x "
+            f"{TARGETS.get(n, 0.0):>6.1f}x {int(all(x.ok for x in runs)):>3}   "
+            f"{cpu.get('harness run', 0):.1f} / {cpu.get('missions', 0):.1f} / {cpu.get('mavsdk_server', 0):.1f} / "
+            f"{cpu.get('network', 0):.1f}{spread}",
             flush=True,
         )
     return 0

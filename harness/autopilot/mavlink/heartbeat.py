@@ -39,11 +39,16 @@ class HeartbeatSchedule:
 
     def due(self, now_ns: int, state: VehicleState) -> bool:
         key = (state.armed, state.mode)
-        if self._last_ns is None or now_ns - self._last_ns >= self.period_ns or key != self._last_key:
+        last = self._last_ns
+        if last is None or key != self._last_key:
             self._last_ns = now_ns
-            self._last_key = key
-            return True
-        return False
+        elif now_ns - last >= self.period_ns:  # keeps its phase (1 Hz on the dot, in step with the streams)
+            nxt = last + self.period_ns
+            self._last_ns = nxt if now_ns - nxt < self.period_ns else now_ns
+        else:
+            return False
+        self._last_key = key
+        return True
 
     def next_due_ns(self) -> int:
         """Wall time of the next periodic heartbeat (0: one is due now)."""

@@ -312,23 +312,26 @@ class StreamScheduler:
     def due(self, wall_ns: int, sim_ns: int) -> list[int]:
         """The streams due now; each is then counted as sent at ``wall_ns`` and ``sim_ns``.
 
-        On the sim clock a stream keeps its phase (the next send is one interval after the previous one was
-        due, not after it was served), so a stream of 10 Hz is 10 Hz of sim time however late the server
-        gets to it; a stream more than one interval behind starts again from now.
+        A stream keeps its phase on the clock that made it due (the next send is one interval after the
+        previous one was due, not after it was served): 10 Hz stays 10 Hz however late the server gets to
+        it, and streams whose intervals divide each other fall due together, so one wake-up serves them
+        all. A stream more than one interval behind starts again from now.
         """
         out = []
         for msg_id, s in self._streams.items():
-            last_sim = s.last_sim_ns
-            if s.last_wall_ns is None or last_sim is None:
-                s.last_sim_ns = sim_ns
-            elif sim_ns - last_sim >= s.interval_ns:
-                nxt = last_sim + s.interval_ns
-                s.last_sim_ns = nxt if sim_ns - nxt < s.interval_ns else sim_ns
-            elif wall_ns - s.last_wall_ns >= s.interval_ns:
+            last_sim, last_wall, interval = s.last_sim_ns, s.last_wall_ns, s.interval_ns
+            if last_wall is None or last_sim is None:
+                s.last_sim_ns, s.last_wall_ns = sim_ns, wall_ns
+            elif sim_ns - last_sim >= interval:
+                nxt = last_sim + interval
+                s.last_sim_ns = nxt if sim_ns - nxt < interval else sim_ns
+                s.last_wall_ns = wall_ns
+            elif wall_ns - last_wall >= interval:
+                nxt = last_wall + interval
+                s.last_wall_ns = nxt if wall_ns - nxt < interval else wall_ns
                 s.last_sim_ns = sim_ns
             else:
                 continue
-            s.last_wall_ns = wall_ns
             out.append(msg_id)
         return out
 
