@@ -360,14 +360,7 @@ class Channel:
         if first.t_ns < self._t_ns:
             raise _Fatal(f"upstream went back in time ({first.t_ns} ns < {self._t_ns} ns)")
         self._t_ns, self._tick = first.t_ns, first.tick
-        local = self._local_autopilots
-        etas = []
-        for m in begin_ticks:
-            eta = local[m.vehicle](m)
-            if eta.t_ns != m.t_ns or eta.vehicle != m.vehicle:
-                raise _Fatal(f"in-process autopilot of vehicle {m.vehicle} answered for {eta.vehicle} at {eta.t_ns}")
-            etas.append(eta)
-        etas.sort(key=_by_vehicle)
+        etas = sorted((self._step_local(m) for m in begin_ticks), key=_by_vehicle)
         self._trace("eta_up", None)
         self.ticks_done += 1
         return etas
@@ -773,10 +766,13 @@ class Channel:
             self._send_raw(peer, data)
         self._flush_dirty()  # BEGIN-TICK-0 and remote BEGIN-TICK-AC go out before the local autopilots run
         for m in mine:  # in-process autopilots answer while the remote ones and the missions work
-            eta = local[m.vehicle](m)
-            if eta.t_ns != m.t_ns or eta.vehicle != m.vehicle:
-                raise _Fatal(f"in-process autopilot of vehicle {m.vehicle} answered for {eta.vehicle} at {eta.t_ns}")
-            self._etas[m.vehicle] = eta
+            self._etas[m.vehicle] = self._step_local(m)
+
+    def _step_local(self, m: p.BeginTickAC) -> p.EndTickAC:
+        eta = self._local_autopilots[m.vehicle](m)
+        if eta.t_ns != m.t_ns or eta.vehicle != m.vehicle:
+            raise _Fatal(f"in-process autopilot of vehicle {m.vehicle} answered for {eta.vehicle} at {eta.t_ns}")
+        return eta
 
     def _start_phase0(self) -> None:
         if self._phase0_started:
