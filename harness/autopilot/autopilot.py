@@ -112,18 +112,23 @@ class Autopilot:
                     self._say(Severity(sev), text)
                 c.texts.clear()
             self._cache = None
+            ring = False
             if self._bell_armed:
                 status = self.packed_status()
                 if c.t_ns >= self._ring_at_ns or self._texts or self._reached or status != self._rung_status:
                     self._bell_armed = False
                     self._rung_status = status
-                    assert self._bell is not None
-                    self._bell()
-            return motors
+                    ring = True
+        if ring:  # outside the lock: the MAVLink side reads the state through the locked API
+            assert self._bell is not None
+            self._bell()
+        return motors
 
     # ------------------------------------------------------------------ telemetry bell
     def attach_bell(self, bell: Callable[[], None]) -> None:
-        """Let the stepping thread call ``bell()`` when the MAVLink side has something to do (no polling).
+        """Let the stepping thread call ``bell()`` (after the step, outside the lock) when the MAVLink side
+        has something to do: the MAVLink server then sends its sim-rate telemetry in lockstep, at the tick
+        it falls due, whatever the speed of the simulation.
 
         It rings once sim time reaches the time given to :meth:`ring_at` (the next sim-rate telemetry
         stream), or as soon as the flight mode, arming or landed state changes, a status text is said or a

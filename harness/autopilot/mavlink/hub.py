@@ -1,18 +1,18 @@
 """One wall-clock thread that serves the MAVLink servers of every vehicle in a process, without polling.
 
 The thread sleeps in a single ``select()`` over every vehicle's UDP sockets and a wake-up pipe, and wakes
-for exactly three reasons:
+for exactly two reasons:
 
 - a datagram arrived (commands are answered at once, on the wall clock);
 - the earliest wall-clock deadline of any server: a stream on its wall rate, the 1 Hz heartbeat, a mission
-  protocol retry, a paced parameter download;
-- an autopilot rang its bell (``Autopilot.attach_bell``): its sim time reached the next sim-rate stream of
-  its server, or its mode, arming, landed state, status texts or mission progress changed.
+  protocol retry, a paced parameter download.
 
-So a paused or slow simulation costs only the wall-rate telemetry and a fast one only its sim-rate
-telemetry, and N vehicles cost one thread, not N threads waking at a fixed rate. (Before the hub, each
-vehicle had its own thread checking every 10 ms of wall time: at 50 vehicles those threads took as much
-CPU as the physics and autopilots together.)
+Sim-rate telemetry and events are not its business: the autopilot's stepping thread serves them through
+its bell (``Autopilot.attach_bell`` → ``MavlinkServer.service``) at the tick they fall due. So a paused or
+slow simulation costs only the wall-rate telemetry and a fast one only its sim-rate telemetry, and N
+vehicles cost one thread, not N threads waking at a fixed rate. (Before the hub, each vehicle had its own
+thread checking every 10 ms of wall time: at 50 vehicles those threads took as much CPU as the physics and
+autopilots together.)
 """
 
 from __future__ import annotations
@@ -46,8 +46,6 @@ class MavlinkHub:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
-        self._rung: deque[MavlinkServer] = deque()
-        self._signalled = False
         self._ops: deque[tuple[str, MavlinkServer, threading.Event]] = deque()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -115,14 +113,7 @@ class MavlinkHub:
     def alive(self) -> bool:
         return self._thread is not None and self._thread.is_alive() and not self._stop.is_set()
 
-    def ring(self, server: MavlinkServer) -> None:
-        """An autopilot's bell (called on the stepping thread): serve ``server`` as soon as possible."""
-        self._rung.append(server)
-        if not self._signalled:
-            self._signal()
-
     def _signal(self) -> None:
-        self._signalled = True
         with contextlib.suppress(OSError):  # a full pipe already wakes the thread; a closed one means stopped
             os.write(self._wake_w, b"\0")
 
@@ -153,14 +144,10 @@ class MavlinkHub:
             server, link = key.data
             server.receive(link, now)
             todo[server] = None
-        self._signalled = False
         while self._ops:
             op, server, done = self._ops.popleft()
             self._apply(op, server)
             done.set()
-        rung = self._rung
-        while rung:
-            todo[rung.popleft()] = None
         for s in self._servers:
             if s.next_wake_ns <= now:
                 todo[s] = None

@@ -5,9 +5,13 @@ snapshot of the last tick), answers within milliseconds, sends heartbeats at >= 
 the simulation is paused or slow, and streams telemetry at the faster of the sim and the wall rate.
 Bad input is counted, logged at debug level, and never stops the server.
 
-A :class:`~harness.autopilot.mavlink.hub.MavlinkHub` thread drives it (one hub serves every vehicle of a
-process): ``receive`` on a datagram, ``service`` when ``next_wake_ns`` (wall) is reached or the autopilot's
-bell rings (sim-rate streams and events). ``start()`` gives a server a hub of its own.
+A :class:`~harness.autopilot.mavlink.hub.MavlinkHub` thread drives it on the wall clock (one hub serves
+every vehicle of a process): ``receive`` on a datagram, ``service`` when ``next_wake_ns`` is reached. The
+autopilot's stepping thread calls ``service`` too, through the autopilot's bell: when sim time reaches the
+next sim-rate stream, or mode, arming, texts or mission progress changed. So sim-rate telemetry goes out in
+lockstep, at the tick it is due, at any speed (a wall-clock thread could not keep up at x50: it sent one
+ATTITUDE per 1.2 s of sim time instead of ten per second). A lock per server serialises the two threads.
+``start()`` gives a server a hub of its own.
 
     server = MavlinkServer(autopilot, vehicle=0, ports=PortsConfig(...), signing=None)
     server.start() ... server.counters() ... server.stop()
@@ -142,6 +146,8 @@ class MavlinkServer:
         self._home: GeoPoint | None = None
         self._hub: MavlinkHub | None = None
         self._own_hub = False
+        self._lock = threading.Lock()
+        """Serialises the hub thread (datagrams, wall-clock deadlines) and the stepping thread (the bell)."""
         self._ring_at: Callable[[int], None] | None = None
         self.next_wake_ns = 0
         """Wall time (monotonic ns) at which the hub must call :meth:`service` at the latest."""
@@ -168,7 +174,7 @@ class MavlinkServer:
         attach = getattr(self.api, "attach_bell", None)
         ring_at = getattr(self.api, "ring_at", None)
         if attach is not None and ring_at is not None:
-            attach(lambda: hub.ring(self))
+            attach(lambda: self.service(self._wall_ns()))
             self._ring_at = ring_at
         self.next_wake_ns = 0
 
@@ -208,16 +214,21 @@ class MavlinkServer:
     # ------------------------------------------------------------------ driven by the hub
     def receive(self, link: int, now: int) -> None:
         """Datagrams are waiting on ``links[link]``: handle them (hub thread)."""
-        try:
-            for data, addr in self.links[link].receive(512):
-                self._on_datagram(link, data, addr, now)
-        except Exception as e:  # never let one bad datagram end the thread
-            self._count("handler_errors")
-            self._log_once(e, "receive")
+        with self._lock:
+            try:
+                for data, addr in self.links[link].receive(512):
+                    self._on_datagram(link, data, addr, now)
+            except Exception as e:  # never let one bad datagram end the thread
+                self._count("handler_errors")
+                self._log_once(e, "receive")
 
     def service(self, now: int) -> None:
         """Everything periodic that is due (telemetry, heartbeat, texts, paced transfers); then plan the next
-        wake-up: a wall time for the hub, a sim time for the autopilot's bell (hub thread)."""
+        wake-up: a wall time for the hub, a sim time for the autopilot's bell (hub or stepping thread)."""
+        with self._lock:
+            self._service(now)
+
+    def _service(self, now: int) -> None:
         try:
             self._tick(now)
         except Exception as e:
