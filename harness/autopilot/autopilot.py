@@ -138,7 +138,7 @@ class Autopilot:
         self.ring_at(0)
 
     def ring_at(self, t_ns: int) -> None:
-        """Arm the bell for sim time ``t_ns`` (any thread; the MAVLink thread calls it after each service)."""
+        """Arm the bell for sim time ``t_ns`` (any thread; the MAVLink server calls it after each service)."""
         if self._bell is not None:
             self._ring_at_ns = t_ns
             self._bell_armed = True

@@ -3,10 +3,10 @@
 Parameters a ground station sets are kept in ``<run dir>/params/vehicle-<i>.json`` and restored when the
 vehicle starts again in the same run directory.
 
-``harness run`` starts one of these for all vehicles (the host benchmark in ``docs/autopilot.md`` shows
-one process for several vehicles is cheaper than one per vehicle). Each vehicle gets a MAVLink server
-(all served by one wall-clock thread, ``MavlinkHub``) (API port ``api_port_base + i``, GCS port) and writes ``vehicle-<i>.tlog`` in the run
-directory: every MAVLink frame it sent or received, each preceded by its 8-byte big-endian Unix time in
+With ``LaunchPlan(autopilots="process")``, ``harness run`` starts one of these for all vehicles (one
+process for several vehicles is cheaper than one per vehicle, ``docs/autopilot.md``). Each vehicle gets a
+MAVLink server on API port ``api_port_base + i`` and the GCS port (one ``MavlinkHub`` thread serves them
+all) and writes ``vehicle-<i>.tlog`` in the run directory: every MAVLink frame it sent or received, each preceded by its 8-byte big-endian Unix time in
 microseconds (the format of QGroundControl and MAVProxy telemetry logs).
 """
 

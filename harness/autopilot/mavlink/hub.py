@@ -40,7 +40,8 @@ class MavlinkHub:
 
     def __init__(self, name: str = "mavlink") -> None:
         self.name = name
-        self._servers: list[MavlinkServer] = []
+        self._servers: dict[MavlinkServer, None] = {}
+        """In the order added (a dict: membership is tested for every server served)."""
         self._sel = selectors.DefaultSelector()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -75,12 +76,12 @@ class MavlinkHub:
         if op == "add":
             if server in self._servers:
                 return
-            self._servers.append(server)
+            self._servers[server] = None
             for i, link in enumerate(server.links):
                 self._sel.register(link.sock, selectors.EVENT_READ, (server, i))
             server.attached(self)
         elif server in self._servers:
-            self._servers.remove(server)
+            del self._servers[server]
             for link in server.links:
                 with contextlib.suppress(KeyError, ValueError, OSError):
                     self._sel.unregister(link.sock)
