@@ -38,6 +38,9 @@ class LinkConfig:
 class PortsConfig:
     """Port plan (DESIGN.md): vehicle ``i`` sends to ``api_port_base + i`` and to ``gcs_port``.
 
+    ``api_port_base = 0``: the API link sends only to the peers that spoke to it (``harness run``: each
+    mission connects out to its own vehicle, and no other run's listener can hear it).
+
     ``api_local_port_base`` / ``gcs_local_port_base``: 0 binds any free port (no collisions between
     parallel runs); otherwise the vehicle binds ``base + i`` (PX4 SITL uses 14580 and 18570), which is what
     a script that connects out (``udpout://``) needs. ``gcs_port = 0`` disables the GCS link.
@@ -65,7 +68,8 @@ class PortsConfig:
         def local(base: int) -> Address:
             return (self.bind_host, base + vehicle if base else 0)
 
-        links = [LinkConfig("api", local(self.api_local_port_base), (self.remote_host, self.api_port_base + vehicle))]
+        api_remote = (self.remote_host, self.api_port_base + vehicle) if self.api_port_base else None
+        links = [LinkConfig("api", local(self.api_local_port_base), api_remote)]
         if self.gcs_port:
             links.append(LinkConfig("gcs", local(self.gcs_local_port_base), (self.remote_host, self.gcs_port)))
         return tuple(links)
