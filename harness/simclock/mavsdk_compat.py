@@ -30,6 +30,7 @@ from harness.simclock.endpoints import VehicleEndpoints, mavsdk_url
 
 log = logging.getLogger(__name__)
 
+
 def detect_api(source: str) -> str:
     """'grpc' for scripts written against the old API, 'native' for mavsdk ≥ 4, '' without MAVSDK."""
     if "mavsdk" not in source:

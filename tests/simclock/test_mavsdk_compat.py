@@ -7,7 +7,6 @@ import pytest
 from harness.simclock.endpoints import VehicleEndpoints, mavsdk_url
 from harness.simclock.mavsdk_compat import detect_api
 
-
 EP = VehicleEndpoints(udp_port=14601, tcp_port=15761)
 
 
