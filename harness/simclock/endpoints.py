@@ -21,6 +21,10 @@ CONNECT_UDP_PORTS = frozenset({14580})
 CONNECT_TCP_PORTS = frozenset({5760})
 """TCP ports a script connects to (ArduPilot SITL's SERIAL0)."""
 
+LISTEN_HELLO = b"HARNESS-LISTEN\n"
+"""Datagram a script's redirected listening socket sends its vehicle: 'send me what you send your mission'
+(a script that only listens, like pymavlink's ``udpin:`` before it has sent anything, is heard this way)."""
+
 _LOCAL_HOSTS = frozenset({"", "0.0.0.0", "127.0.0.1", "localhost", "::", "::1"})
 _URL = re.compile(r"^(?P<scheme>[a-z]+)://(?P<host>\[[^\]]*\]|[^:/]*)(?::(?P<port>\d+))?(?P<rest>.*)$")
 

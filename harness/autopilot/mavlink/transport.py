@@ -16,12 +16,15 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from harness.errors import ScenarioError
+from harness.simclock.endpoints import LISTEN_HELLO
 
 log = logging.getLogger(__name__)
 
 Address = tuple[str, int]
 
 PEER_TIMEOUT_NS = 10_000_000_000
+_FOREVER = 1 << 62
+"""Last-heard time of a peer that announced itself as a listener: never forgotten for silence."""
 _RECV_SIZE = 65_535
 
 
@@ -119,11 +122,14 @@ class UdpLink:
                     self.recv_errors += 1
                     log.debug("%s link: receive error %s", self.name, e)
                 continue
+            if data == LISTEN_HELLO:  # a mission's listening socket (pymavlink udpin): it gets what peers get
+                self._peers[(addr[0], addr[1])] = _FOREVER
+                continue
             yield data, (addr[0], addr[1])
 
     def heard(self, peer: Address, now_ns: int) -> None:
         """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too."""
-        self._peers[peer] = now_ns
+        self._peers[peer] = max(self._peers.get(peer, 0), now_ns)
 
     def destinations(self, now_ns: int) -> list[Address]:
         """The remote and the live peers (forgets peers silent longer than the timeout)."""
