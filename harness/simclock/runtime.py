@@ -317,9 +317,6 @@ class SimRuntime:
                 return w
             self._idle[w.ident] = w
             self._by_lock[id(lock)] = w
-            # a thread that waits on the sim clock (a library's worker: DroneKit's writer) is part of the
-            # script from now on: once woken in phase 0, phase 0 ends only after it is idle again
-            self._script_threads[w.ident] = True
             if deadline_ns is not None:
                 self._timed.append(w)
             if inbox:
@@ -415,11 +412,6 @@ class SimRuntime:
 
     def has_delivery(self, port: int) -> bool:
         return any(d.port == port for d in self.inbox)
-
-    def track_current_thread(self) -> None:
-        """The calling thread waits for I/O of the script (a library's reader thread: pymavlink, DroneKit):
-        from now on phase 0 also waits for it to be idle, so what it reads is handled on the sim clock."""
-        self._script_threads[_thread.get_ident()] = True
 
     def queue_packet(self, dst: int, port: int, payload: bytes) -> None:
         """ENQUEUE a packet for the network; sent before this phase's END-TICK-0."""
