@@ -1,0 +1,235 @@
+"""Runs a sweep on Dask distributed: an embedded local cluster, or a scheduler's address for a cluster.
+
+Runs that a previous sweep into the same directory finished (status ok or failed, same parameters) are
+kept; the others are submitted, one Dask task each (``harness.sweep.task.run_job``). ``results.csv`` is
+rewritten as each run ends, so it is complete up to that point even after Ctrl-C. On KeyboardInterrupt
+(Ctrl-C, or SIGTERM via the CLI) the sweep sets its stop event: every worker SIGTERMs its runs, which
+write their summaries as interrupted; the client waits for that (a few seconds at most), then cancels
+what is left and closes the cluster.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from harness.errors import ScenarioError
+from harness.sweep.results import write_results
+from harness.sweep.spec import SweepSpec
+from harness.sweep.task import RunJob, RunStatus, finished_row, run_job
+
+log = logging.getLogger(__name__)
+
+STOP_WAIT_S = 4.0
+"""After Ctrl-C, how long the client waits for the workers to stop their runs (they need ~2 s)."""
+
+
+@dataclass(frozen=True)
+class SweepOptions:
+    out: Path
+    scheduler: str | None = None
+    """``tcp://HOST:8786``; None: a local cluster inside this process."""
+    runs_per_worker: int | None = None
+    """Runs at once per worker. Local cluster: its thread count (default: the CPU count). With a scheduler:
+    a limit inside each worker process (default: the worker's ``--nthreads``)."""
+    run_timeout_s: float | None = None
+    retry_failed: bool = False
+
+
+@dataclass
+class SweepProgress:
+    total: int
+    done: int
+    kept: int
+    """Finished by an earlier sweep into the same directory."""
+    failed: int
+    elapsed_s: float
+    eta_s: float | None
+    last: str = ""
+
+
+@dataclass
+class SweepOutcome:
+    rows: list[dict[str, Any]]
+    ran: int
+    kept: int
+    interrupted: bool
+    wall_time_s: float
+    files: list[Path]
+
+    @property
+    def failed(self) -> list[dict[str, Any]]:
+        return [r for r in self.rows if r.get("status") != RunStatus.OK]
+
+    @property
+    def exit_code(self) -> int:
+        return 130 if self.interrupted else (1 if self.failed else 0)
+
+
+def run_sweep(
+    spec: SweepSpec, opts: SweepOptions, progress: Callable[[SweepProgress], None] | None = None
+) -> SweepOutcome:
+    if opts.runs_per_worker is not None and opts.runs_per_worker < 1:
+        raise ScenarioError(f"--runs-per-worker must be >= 1, got {opts.runs_per_worker}")
+    if opts.run_timeout_s is not None and not opts.run_timeout_s > 0:
+        raise ScenarioError(f"--run-timeout must be > 0 seconds, got {opts.run_timeout_s}")
+    out = opts.out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sweep.json").write_text(json.dumps(spec.describe(), indent=2, default=str))
+    params = [p.path for p in spec.params]
+    rows: dict[str, dict[str, Any]] = {}
+    todo = []
+    for r in spec.runs:
+        row = finished_row(out / r.name, r.params(), r.seed)
+        if row is not None and (row["status"] == RunStatus.OK or not opts.retry_failed):
+            rows[r.name] = row
+        else:
+            todo.append(r)
+    kept = len(rows)
+    order = {r.name: i for i, r in enumerate(spec.runs)}
+
+    def ordered() -> list[dict[str, Any]]:
+        return sorted(rows.values(), key=lambda row: order[row["run"]])
+
+    t0 = time.monotonic()
+    files = write_results(out, ordered(), params)
+
+    def report(last: str = "") -> None:
+        if progress is None:
+            return
+        done = len(rows)
+        elapsed = time.monotonic() - t0
+        ran = done - kept
+        eta = elapsed / ran * (len(spec.runs) - done) if ran else None
+        failed = sum(1 for row in rows.values() if row.get("status") != RunStatus.OK)
+        progress(SweepProgress(len(spec.runs), done, kept, failed, elapsed, eta, last))
+
+    interrupted = False
+    if todo:
+        log.info("%d of %d runs already finished in %s; running %d", kept, len(spec.runs), out, len(todo))
+        token = uuid.uuid4().hex[:12]
+        jobs = [
+            RunJob(
+                name=r.name,
+                scenario=str(spec.scenario.resolve()),
+                run_dir=str(out / r.name),
+                seed=r.seed,
+                sets=r.sets,
+                params=json.loads(json.dumps(r.params(), default=str)),
+                timeout_s=opts.run_timeout_s,
+                stop_event=f"harness-sweep-stop-{token}",
+                slots=opts.runs_per_worker if opts.scheduler else None,
+            )
+            for r in todo
+        ]
+
+        def on_row(row: dict[str, Any]) -> None:
+            rows[row["run"]] = row
+            write_results(out, ordered(), params)
+            report(f"{row['run']}: {row.get('status')}")
+
+        report()
+        with _Cluster(opts) as client:
+            interrupted = _drive(client, jobs, token, on_row, report)
+
+    files = write_results(out, ordered(), params)
+    return SweepOutcome(ordered(), len(rows) - kept, kept, interrupted, time.monotonic() - t0, files)
+
+
+def _drive(
+    client: Any,
+    jobs: list[RunJob],
+    token: str,
+    on_row: Callable[[dict[str, Any]], None],
+    tick: Callable[[], None],
+) -> bool:
+    """Submit every job and hand each row to ``on_row`` as its run ends; True when stopped by Ctrl-C."""
+    from distributed import Event, wait
+
+    stop = Event(jobs[0].stop_event, client=client)
+    futures = {
+        client.submit(run_job, job, key=f"harness-run-{job.name}-{token}", pure=False, retries=0): job for job in jobs
+    }
+    pending = set(futures)
+
+    def collect(done: set[Any]) -> None:
+        for fut in done:
+            job = futures[fut]
+            if fut.status == "finished":
+                on_row(fut.result())
+                continue
+            exc = fut.exception() if fut.status == "error" else None
+            on_row(
+                {
+                    "run": job.name,
+                    "seed": job.seed,
+                    **job.params,
+                    "status": str(RunStatus.LOST),
+                    "message": f"the Dask task failed: {exc!r}" if exc is not None else f"the Dask task {fut.status}",
+                }
+            )
+
+    try:
+        while pending:
+            done, not_done = wait(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
+            pending = set(not_done)
+            collect(set(done))
+            if not done:
+                tick()
+        return False
+    except KeyboardInterrupt:
+        log.warning("stopping the sweep: every running run gets SIGTERM")
+        stop.set()
+        try:
+            done, _ = wait(list(pending), timeout=STOP_WAIT_S)
+            collect({f for f in done if f.status in ("finished", "error")})
+        except Exception:  # a second Ctrl-C, or the scheduler is gone: cancel what is left at once
+            log.debug("stop wait cut short", exc_info=True)
+        client.cancel(list(pending), force=True)
+        return True
+    finally:
+        stop.set()  # the event's runs are over either way; a shared scheduler is left with nothing waiting
+
+
+class _Cluster:
+    """A client: to ``opts.scheduler``, or to a local cluster in this process (closed at the end)."""
+
+    def __init__(self, opts: SweepOptions) -> None:
+        self.opts = opts
+        self.cluster: Any = None
+        self.client: Any = None
+
+    def __enter__(self) -> Any:
+        from distributed import Client, LocalCluster
+
+        if self.opts.scheduler:
+            try:
+                self.client = Client(self.opts.scheduler, timeout=15)
+            except OSError as exc:
+                raise ScenarioError(f"--scheduler {self.opts.scheduler}: cannot connect ({exc})") from None
+            return self.client
+        threads = self.opts.runs_per_worker or os.cpu_count() or 1
+        # Threads, not processes: a task only starts a subprocess and waits for it. Ctrl-C then reaches
+        # this process alone (the runs are in their own process groups) and the sweep stops them itself.
+        self.cluster = LocalCluster(
+            n_workers=1,
+            threads_per_worker=threads,
+            processes=False,
+            dashboard_address=None,
+            silence_logs=logging.INFO if log.isEnabledFor(logging.INFO) else logging.ERROR,
+        )
+        self.client = Client(self.cluster)
+        return self.client
+
+    def __exit__(self, *exc: object) -> None:
+        if self.client is not None:
+            self.client.close(timeout=5)
+        if self.cluster is not None:
+            self.cluster.close(timeout=5)

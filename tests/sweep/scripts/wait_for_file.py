@@ -1,0 +1,17 @@
+"""Test mission: report a metric, then wait (sim-time sleeps) until the file given as argument exists.
+
+An argument that exists already ends the mission at once; one that does not keeps the run going until the
+test creates it (or the run is stopped)."""
+
+import os
+import sys
+import time
+from pathlib import Path
+
+from harness.metrics import report
+
+flag = Path(sys.argv[1])
+report(vehicle=int(os.environ["HARNESS_VEHICLE"]), seed_seen=int(os.environ.get("SWEEP_TEST_SEED", "-1")))
+while not flag.exists():
+    time.sleep(0.5)
+report(done=True)
