@@ -65,7 +65,8 @@ def make_sweep_plots(sweep_dir: Path) -> list[Path]:
                 means: dict[float, list[float]] = defaultdict(list)
                 color = None
                 for r in rows:
-                    x, value = r.get(param), r.get(col)
+                    x: Any = r.get(param)
+                    value: Any = r.get(col)
                     if x is None or not _number(value):
                         continue
                     y = float(value)

@@ -178,8 +178,11 @@ def _drive(
 
     try:
         while pending:
-            done, not_done = wait(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
-            pending = set(not_done)
+            try:
+                done, _ = wait(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
+            except TimeoutError:  # distributed's wait raises instead of returning nothing done
+                done = set()
+            pending -= set(done)
             collect(set(done))
             if not done:
                 tick()
@@ -188,8 +191,11 @@ def _drive(
         log.warning("stopping the sweep: every running run gets SIGTERM")
         stop.set()
         try:
-            done, _ = wait(list(pending), timeout=STOP_WAIT_S)
-            collect({f for f in done if f.status in ("finished", "error")})
+            try:
+                wait(list(pending), timeout=STOP_WAIT_S)
+            except TimeoutError:
+                pass
+            collect({f for f in pending if f.status in ("finished", "error")})
         except Exception:  # a second Ctrl-C, or the scheduler is gone: cancel what is left at once
             log.debug("stop wait cut short", exc_info=True)
         client.cancel(list(pending), force=True)
