@@ -212,7 +212,7 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
 def _sweep_bar() -> Callable[[SweepProgress], None]:
     """The sweep's progress bar on stderr: redrawn in place on a terminal, a line per finished run otherwise."""
     tty = sys.stderr.isatty()
-    last_done = [-1]
+    last_seen: list[tuple[int, str]] = [(-1, "")]
 
     def show(pr: SweepProgress) -> None:
         width = 30
@@ -225,8 +225,8 @@ def _sweep_bar() -> Callable[[SweepProgress], None]:
         if tty:
             sys.stderr.write("\r\033[K" + line)
             sys.stderr.flush()
-        elif pr.done != last_done[0]:
-            last_done[0] = pr.done
+        elif pr.done != last_seen[0][0] or (pr.last and pr.last != last_seen[0][1]):
+            last_seen[0] = (pr.done, pr.last)
             print(line + (f"  {pr.last}" if pr.last else ""), file=sys.stderr, flush=True)
 
     return show

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness.errors import ScenarioError
+from harness.errors import ScenarioError, SimulationError
 from harness.sweep.results import write_results
 from harness.sweep.spec import SweepSpec
 from harness.sweep.task import RunJob, RunStatus, finished_row, run_job
@@ -29,6 +30,9 @@ log = logging.getLogger(__name__)
 
 STOP_WAIT_S = 4.0
 """After Ctrl-C, how long the client waits for the workers to stop their runs (they need ~2 s)."""
+HEALTH_EVERY_S = 5.0
+SCHEDULER_LOST_S = 60.0
+"""A sweep whose client has been cut off from the scheduler this long fails with a clear message."""
 
 
 @dataclass(frozen=True)
@@ -148,7 +152,7 @@ def _drive(
     jobs: list[RunJob],
     token: str,
     on_row: Callable[[dict[str, Any]], None],
-    tick: Callable[[], None],
+    tick: Callable[[str], None],
 ) -> bool:
     """Submit every job and hand each row to ``on_row`` as its run ends; True when stopped by Ctrl-C."""
     from distributed import Event, wait
@@ -158,6 +162,7 @@ def _drive(
         client.submit(run_job, job, key=f"harness-run-{job.name}-{token}", pure=False, retries=0): job for job in jobs
     }
     pending = set(futures)
+    last_seen = last_check = time.monotonic()
 
     def collect(done: set[Any]) -> None:
         for fut in done:
@@ -184,24 +189,41 @@ def _drive(
                 done = set()
             pending -= set(done)
             collect(set(done))
-            if not done:
-                tick()
+            if done:
+                last_seen = time.monotonic()
+            elif time.monotonic() - last_check > HEALTH_EVERY_S:
+                last_check = time.monotonic()
+                note = _health(client)
+                if note and time.monotonic() - last_seen > SCHEDULER_LOST_S and client.status != "running":
+                    raise SimulationError(f"{note} for {SCHEDULER_LOST_S:.0f} s: giving up ({len(pending)} runs left)")
+                tick(note)
+            else:
+                tick("")
         return False
     except KeyboardInterrupt:
         log.warning("stopping the sweep: every running run gets SIGTERM")
-        stop.set()
-        try:
-            try:
-                wait(list(pending), timeout=STOP_WAIT_S)
-            except TimeoutError:
-                pass
-            collect({f for f in pending if f.status in ("finished", "error")})
-        except Exception:  # a second Ctrl-C, or the scheduler is gone: cancel what is left at once
-            log.debug("stop wait cut short", exc_info=True)
-        client.cancel(list(pending), force=True)
+        # Each call to the scheduler is bounded: a dead scheduler must not keep Ctrl-C from ending the sweep.
+        _bounded(stop.set, 2.0)
+        _bounded(lambda: wait(list(pending), timeout=STOP_WAIT_S), STOP_WAIT_S + 0.5)
+        collect({f for f in pending if f.status in ("finished", "error")})
+        _bounded(lambda: client.cancel(list(pending), force=True), 2.0)
         return True
     finally:
-        stop.set()  # the event's runs are over either way; a shared scheduler is left with nothing waiting
+        if not pending:
+            _bounded(stop.set, 2.0)  # nobody waits on it any more
+
+
+def _health(client: Any) -> str:
+    """Why nothing is happening, when it is the cluster's fault: no scheduler, or no worker."""
+    if client.status != "running":
+        return f"lost the Dask scheduler (client {client.status})"
+    threads: dict[str, Any] = {}
+
+    def ask() -> None:
+        threads.update(client.nthreads())
+
+    _bounded(ask, 5.0)
+    return "" if threads else "waiting for a Dask worker to join the scheduler"
 
 
 class _Cluster:
@@ -236,6 +258,25 @@ class _Cluster:
 
     def __exit__(self, *exc: object) -> None:
         if self.client is not None:
-            self.client.close(timeout=5)
+            _bounded(lambda: self.client.close(timeout=3), 4.0)
         if self.cluster is not None:
-            self.cluster.close(timeout=5)
+            _bounded(lambda: self.cluster.close(timeout=3), 4.0)
+
+
+def _bounded(call: Callable[[], object], timeout_s: float) -> None:
+    """Run ``call`` for at most ``timeout_s`` (in a daemon thread); errors and overruns are logged, not raised."""
+    failure: list[BaseException] = []
+
+    def target() -> None:
+        try:
+            call()
+        except BaseException as exc:  # reported below; the shutdown goes on
+            failure.append(exc)
+
+    t = threading.Thread(target=target, name="sweep-shutdown", daemon=True)
+    t.start()
+    t.join(timeout_s)
+    if t.is_alive():
+        log.warning("the scheduler did not answer within %.0f s; going on without it", timeout_s)
+    elif failure and not isinstance(failure[0], TimeoutError):
+        log.debug("shutdown step failed: %r", failure[0])
