@@ -11,7 +11,8 @@ from pathlib import Path
 from harness.metrics import report
 
 flag = Path(sys.argv[1])
-report(vehicle=int(os.environ["HARNESS_VEHICLE"]), seed_seen=int(os.environ.get("SWEEP_TEST_SEED", "-1")))
+start = time.monotonic()  # sim time
+report(vehicle=int(os.environ["HARNESS_VEHICLE"]))
 while not flag.exists():
     time.sleep(0.5)
-report(done=True)
+report(waited_s=time.monotonic() - start)

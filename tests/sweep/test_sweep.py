@@ -1,0 +1,206 @@
+"""`harness sweep` end to end: real `harness run` processes under real Dask (local cluster, and a scheduler
+plus a worker started as separate processes), results.csv, plots, Ctrl-C with nothing left, resume."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from harness.pytest_plugin import SweepRecord
+from harness.sweep.results import read_results
+
+pytestmark = pytest.mark.sim
+WAIT_FOR_FILE = Path(__file__).resolve().parent / "scripts" / "wait_for_file.py"
+
+
+def scenario(tmp_path: Path, speed: str = '"max"') -> Path:
+    """Vehicles on the ground, each running wait_for_file.py: a run ends once its flag file exists."""
+    path = tmp_path / "s.toml"
+    path.write_text(
+        f'seed = 0\nspeed = {speed}\nduration_s = 600\n[vehicles]\ncount = 1\nmission = "{WAIT_FOR_FILE}"\n'
+        f'args = ["{tmp_path / "never"}"]\n'
+    )
+    return path
+
+
+def pids_under(out: Path) -> list[int]:
+    """Live processes of the sweep's runs: each carries HARNESS_RUN_DIR=<out>/<run> in its environment."""
+    found = []
+    needle = f"HARNESS_RUN_DIR={out}/".encode()
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                env = Path(f"/proc/{entry}/environ").read_bytes()
+            except OSError:
+                continue
+            if any(var.startswith(needle) for var in env.split(b"\0")):
+                found.append(int(entry))
+    return found
+
+
+def sweep_cmd(scenario: Path, out: Path, *args: str) -> list[str]:
+    return [sys.executable, "-m", "harness.cli", "sweep", str(scenario), "--out", str(out), *args]
+
+
+def interrupt_when(proc: subprocess.Popen[str], out: Path, ok_runs: int, timeout_s: float = 90) -> float:
+    """Wait for ``ok_runs`` finished runs while the others still run, then Ctrl-C the sweep; returns the
+    seconds until the sweep and every process of its runs were gone."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        done = [p for p in out.glob("*/summary.json") if json.loads(p.read_text())["status"] == "ok"]
+        if len(done) >= ok_runs and pids_under(out):
+            break
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.2)
+    else:
+        raise AssertionError("the short runs did not finish in time")
+    time.sleep(1.0)  # the long runs are well under way
+    proc.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 10:
+        if proc.poll() is not None and not pids_under(out):
+            return time.monotonic() - t0
+        time.sleep(0.05)
+    return time.monotonic() - t0
+
+
+def test_local_sweep_table_plugin_and_plots(tmp_path: Path, harness_sweep: Callable[..., SweepRecord]) -> None:
+    flag = tmp_path / "go"
+    flag.touch()
+    path = scenario(tmp_path)
+    sweep = harness_sweep(path, seeds="3-4", sets={"vehicles.count": [1, 2], "vehicles.args": [[str(flag)]]})
+    assert sweep.ok, sweep.message
+    assert len(sweep.rows) == 4
+    assert sweep.column("seed") == [3, 4, 3, 4] and sweep.column("vehicles.count") == [1, 1, 2, 2]
+    two = sweep.where({"vehicles.count": 2, "seed": 4})[0]
+    assert two["run"] == f"seed-4_vehicles.count-2_vehicles.args-{str(flag).strip('/').replace('/', '_')}"
+    assert two["v1.vehicle"] == 1 and two["v1.mission_exit_code"] == 0 and two["v1.landed"] is True
+    assert sweep.where({"vehicles.count": 1})[0]["v1.vehicle"] is None  # no such vehicle: an empty cell
+    for row in sweep.rows:
+        assert row["status"] == "ok" and row["sim_time_s"] > 0 and row["wall_time_s"] > 0
+        assert row["worker"].startswith("inproc://") and (sweep.out / row["run"] / "summary.json").is_file()
+        assert json.loads((sweep.out / row["run"] / "summary.json").read_text())["seed"] == row["seed"]
+    assert (sweep.out / "results.parquet").is_file() or pytest.importorskip("pyarrow") is None
+    assert not pids_under(sweep.out)
+
+    plot = subprocess.run([sys.executable, "-m", "harness.cli", "plot", str(sweep.out)], capture_output=True, text=True)
+    assert plot.returncode == 0, plot.stderr
+    pngs = {Path(line).name for line in plot.stdout.split() if line.endswith(".png")}
+    assert {"real_time_factor_vs_vehicles_count.png", "vehicle_vs_vehicles_args.png"} <= pngs
+    assert all((sweep.out / name).stat().st_size > 1000 for name in pngs)
+    assert "seed-4_vehicles.count-2" in (sweep.out / "index.html").read_text()
+
+
+def test_ctrl_c_stops_every_run_and_a_rerun_completes_only_the_missing(tmp_path: Path) -> None:
+    go = tmp_path / "go"
+    short = tmp_path / "short"
+    short.touch()
+    path = scenario(tmp_path, speed="1")  # the long runs idle at real time until `go` exists
+    out = tmp_path / "sweep"
+    cmd = sweep_cmd(
+        path, out, "--seeds", "0-1", "--set", f'vehicles.args=["{short}"],["{go}"]', "--runs-per-worker", "4"
+    )
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    gone_s = interrupt_when(proc, out, ok_runs=2)
+    stdout, stderr = proc.communicate(timeout=10)
+    assert gone_s < 5.0, (gone_s, pids_under(out), stderr)
+    assert proc.returncode == 130, stderr
+    rows = {r["run"]: r for r in read_results(out / "results.csv")}
+    assert sorted(r["status"] for r in rows.values()) == ["interrupted", "interrupted", "ok", "ok"]
+    kept = {name: (out / name / "sweep-run.json").read_text() for name, r in rows.items() if r["status"] == "ok"}
+    stopped = [name for name, r in rows.items() if r["status"] == "interrupted"]
+    for name in stopped:  # harness run was stopped by SIGTERM, not killed: it wrote its summary
+        assert json.loads((out / name / "summary.json").read_text())["status"] == "interrupted"
+
+    go.touch()
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    assert "2 run(s) this time, 2 kept from before" in again.stdout
+    rows = {r["run"]: r for r in read_results(out / "results.csv")}
+    assert len(rows) == 4 and all(r["status"] == "ok" for r in rows.values())
+    assert {name: (out / name / "sweep-run.json").read_text() for name in kept} == kept  # not run again
+    assert all(rows[name]["v0.waited_s"] is not None for name in stopped)
+    assert not pids_under(out)
+
+
+@pytest.fixture
+def dask_cluster(tmp_path: Path) -> Iterator[str]:
+    """`dask scheduler` and one `dask worker` (2 threads) as separate processes on loopback."""
+    sched_file = tmp_path / "scheduler.json"
+    procs = []
+
+    def start(*args: str) -> None:
+        log = (tmp_path / f"dask-{len(procs)}.log").open("w")
+        procs.append(subprocess.Popen(args, stdout=log, stderr=log, start_new_session=True))
+
+    try:
+        start(
+            sys.executable,
+            "-m",
+            "distributed.cli.dask_scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--no-dashboard",
+            "--scheduler-file",
+            str(sched_file),
+        )
+        deadline = time.monotonic() + 60
+        while not sched_file.is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        address = json.loads(sched_file.read_text())["address"]
+        start(
+            sys.executable,
+            "-m",
+            "distributed.cli.dask_worker",
+            address,
+            "--nthreads",
+            "2",
+            "--no-dashboard",
+            "--host",
+            "127.0.0.1",
+            "--name",
+            "test-worker",
+        )
+        yield address
+    finally:
+        for p in reversed(procs):
+            os.killpg(p.pid, signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+def test_sweep_on_a_scheduler_and_a_worker_process(tmp_path: Path, dask_cluster: str) -> None:
+    go = tmp_path / "go"
+    short = tmp_path / "short"
+    short.touch()
+    path = scenario(tmp_path, speed="1")
+    out = tmp_path / "sweep"
+    cmd = sweep_cmd(path, out, "--set", f'vehicles.args=["{short}"],["{go}"]', "--scheduler", dask_cluster)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    gone_s = interrupt_when(proc, out, ok_runs=1, timeout_s=120)  # the worker may still be registering
+    _, stderr = proc.communicate(timeout=10)
+    assert gone_s < 5.0 and proc.returncode == 130, (gone_s, pids_under(out), stderr)
+
+    go.touch()
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    assert "1 run(s) this time, 1 kept from before" in again.stdout
+    rows = read_results(out / "results.csv")
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+    assert all(r["worker"].startswith("tcp://127.0.0.1:") for r in rows)  # ran on the worker process
+    assert rows[1]["v0.vehicle"] == 0 and rows[1]["v0.waited_s"] is not None
+    assert not pids_under(out)
