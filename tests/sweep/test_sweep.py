@@ -113,6 +113,8 @@ def test_ctrl_c_stops_every_run_and_a_rerun_completes_only_the_missing(tmp_path:
     stdout, stderr = proc.communicate(timeout=10)
     assert gone_s < 5.0, (gone_s, pids_under(out), stderr)
     assert proc.returncode == 130, stderr
+    assert stdout.startswith("sweep of 4 runs") and "interrupted: 4 run(s) this time" in stdout
+    assert "re-run the same command to finish the missing runs" in stderr
     rows = {r["run"]: r for r in read_results(out / "results.csv")}
     assert sorted(r["status"] for r in rows.values()) == ["interrupted", "interrupted", "ok", "ok"]
     kept = {name: (out / name / "sweep-run.json").read_text() for name, r in rows.items() if r["status"] == "ok"}
