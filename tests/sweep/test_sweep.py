@@ -133,6 +133,25 @@ def test_ctrl_c_stops_every_run_and_a_rerun_completes_only_the_missing(tmp_path:
     assert not pids_under(out)
 
 
+def test_a_killed_sweep_leaves_no_process(tmp_path: Path) -> None:
+    """kill -9 of `harness sweep` (local cluster): the kernel kills each run (PR_SET_PDEATHSIG on the worker
+    thread that started it) and each run's children in turn."""
+    path = scenario(tmp_path, speed="1")
+    out = tmp_path / "sweep"
+    proc = subprocess.Popen(sweep_cmd(path, out, "--seeds", "0-1"), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while len(pids_under(out)) < 4 and time.monotonic() < deadline:  # 2 x (harness run + its mission)
+        time.sleep(0.2)
+    assert len(pids_under(out)) >= 4, proc.stderr.read() if proc.poll() is not None and proc.stderr else ""
+    proc.kill()
+    proc.wait()
+    t0 = time.monotonic()
+    while pids_under(out) and time.monotonic() - t0 < 10:
+        time.sleep(0.05)
+    assert not pids_under(out), f"still running {time.monotonic() - t0:.1f} s after kill -9: {pids_under(out)}"
+    assert time.monotonic() - t0 < 5.0
+
+
 @pytest.fixture
 def dask_cluster(tmp_path: Path) -> Iterator[str]:
     """`dask scheduler` and one `dask worker` (2 threads) as separate processes on loopback."""
