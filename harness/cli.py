@@ -220,7 +220,7 @@ def _sweep_bar() -> Callable[[SweepProgress], None]:
         eta = f"  ~{pr.eta_s:.0f} s left" if pr.eta_s is not None and pr.done < pr.total else ""
         line = (
             f"[{'#' * filled}{'.' * (width - filled)}] {pr.done}/{pr.total} runs"
-            f"{f' ({pr.kept} kept)' if pr.kept else ''}  {pr.failed} failed  {pr.elapsed_s:.0f} s{eta}"
+            f"{f' ({pr.kept} kept)' if pr.kept else ''}  {pr.failed} not ok  {pr.elapsed_s:.0f} s{eta}"
         )
         if tty:
             sys.stderr.write("\r\033[K" + line)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import threading
 import time
 import uuid
@@ -32,6 +33,7 @@ STOP_WAIT_S = 4.0
 """After Ctrl-C, how long the client waits for the workers to stop their runs (they need ~2 s)."""
 HEALTH_EVERY_S = 5.0
 SCHEDULER_LOST_S = 60.0
+_ADDRESS = re.compile(r"^([a-z]+://)?[^\s:/]+:\d+$")
 """A sweep whose client has been cut off from the scheduler this long fails with a clear message."""
 
 
@@ -45,6 +47,14 @@ class SweepOptions:
     a limit inside each worker process (default: the worker's ``--nthreads``)."""
     run_timeout_s: float | None = None
     retry_failed: bool = False
+
+    def __post_init__(self) -> None:
+        if self.runs_per_worker is not None and self.runs_per_worker < 1:
+            raise ScenarioError(f"--runs-per-worker must be >= 1, got {self.runs_per_worker}")
+        if self.run_timeout_s is not None and not self.run_timeout_s > 0:
+            raise ScenarioError(f"--run-timeout must be > 0 seconds, got {self.run_timeout_s}")
+        if self.scheduler is not None and not _ADDRESS.match(self.scheduler):
+            raise ScenarioError(f"--scheduler {self.scheduler}: expected a Dask scheduler address like tcp://HOST:8786")
 
 
 @dataclass
@@ -80,10 +90,6 @@ class SweepOutcome:
 def run_sweep(
     spec: SweepSpec, opts: SweepOptions, progress: Callable[[SweepProgress], None] | None = None
 ) -> SweepOutcome:
-    if opts.runs_per_worker is not None and opts.runs_per_worker < 1:
-        raise ScenarioError(f"--runs-per-worker must be >= 1, got {opts.runs_per_worker}")
-    if opts.run_timeout_s is not None and not opts.run_timeout_s > 0:
-        raise ScenarioError(f"--run-timeout must be > 0 seconds, got {opts.run_timeout_s}")
     out = opts.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     (out / "sweep.json").write_text(json.dumps(spec.describe(), indent=2, default=str))
@@ -103,7 +109,7 @@ def run_sweep(
         return sorted(rows.values(), key=lambda row: order[row["run"]])
 
     t0 = time.monotonic()
-    files = write_results(out, ordered(), params)
+    write_results(out, ordered(), params)
 
     def report(last: str = "") -> None:
         if progress is None:
@@ -240,7 +246,7 @@ class _Cluster:
         if self.opts.scheduler:
             try:
                 self.client = Client(self.opts.scheduler, timeout=15)
-            except OSError as exc:
+            except (OSError, ValueError) as exc:
                 raise ScenarioError(f"--scheduler {self.opts.scheduler}: cannot connect ({exc})") from None
             return self.client
         threads = self.opts.runs_per_worker or os.cpu_count() or 1

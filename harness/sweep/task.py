@@ -102,7 +102,7 @@ def finished_row(run_dir: Path, params: Mapping[str, Any], seed: int) -> dict[st
         row = row_from_run_dir(run_dir, params, seed)
     except (OSError, ValueError):
         return None
-    if marker.get("params") != json.loads(json.dumps(dict(params))) or marker.get("seed") != seed:
+    if marker.get("params") != json.loads(json.dumps(dict(params), default=str)) or marker.get("seed") != seed:
         return None
     if row.get("status") not in FINISHED:
         return None
@@ -175,8 +175,13 @@ def _run(job: RunJob) -> dict[str, Any]:
 
 
 def _row_without_summary(job: RunJob, status: RunStatus, message: str) -> dict[str, Any]:
-    return {"run": job.name, "seed": job.seed, **job.params, "status": str(status), "message": message} | {
-        "worker": _worker_name()
+    return {
+        "run": job.name,
+        "seed": job.seed,
+        **job.params,
+        "status": str(status),
+        "message": message,
+        "worker": _worker_name(),
     }
 
 

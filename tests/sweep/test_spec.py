@@ -130,3 +130,25 @@ def test_harness_run_takes_set_too(tmp_path: Path) -> None:
     )
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"harness: {EXAMPLE}: wind.nort_m_s: unknown key (did you mean 'north_m_s'?)"
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (["--scheduler", "nonsense"], "--scheduler nonsense: expected a Dask scheduler address like tcp://HOST:8786"),
+        (["--runs-per-worker", "0"], "--runs-per-worker must be >= 1, got 0"),
+        (["--run-timeout", "-1"], "--run-timeout must be > 0 seconds, got -1.0"),
+        (["--seeds", "5-2"], "--seeds 5-2: the range 5-2 runs backwards"),
+    ],
+)
+def test_bad_sweep_options_are_one_line(tmp_path: Path, option: list[str], message: str) -> None:
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [sys.executable, "-m", "harness.cli", "sweep", str(EXAMPLE), "--out", str(out), *option],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.strip().splitlines() == [f"harness: {message}"]
+    assert not out.exists()
