@@ -178,10 +178,10 @@ def run_mission(spec: MissionSpec) -> int:
     os.environ.setdefault("HARNESS_VEHICLE", str(spec.vehicle))
     os.environ.setdefault("HARNESS_SYSID", str(spec.vehicle + 1))
     patch.install(rt)
+    ep = VehicleEndpoints.from_env(spec.vehicle)
     from harness.net import udp
 
-    udp.install(rt)  # UDP to 10.42.0.x goes through the simulated network
-    ep = VehicleEndpoints.from_env(spec.vehicle)
+    udp.install(rt, ep)  # sockets: sim-time waits, MAVLink to this vehicle, UDP to 10.42.0.x on the radio
     api = mavsdk_compat.install(spec.script, ep, os.environ.get("HARNESS_MAVSDK_API") or None)
     if api:
         log.info("mission %s: MAVSDK %s API, vehicle endpoints %s", spec.name, api, ep)

@@ -16,12 +16,15 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from harness.errors import ScenarioError
+from harness.simclock.endpoints import LISTEN_HELLO
 
 log = logging.getLogger(__name__)
 
 Address = tuple[str, int]
 
 PEER_TIMEOUT_NS = 10_000_000_000
+_FOREVER = 1 << 62
+"""Last-heard time of a peer that announced itself as a listener: never forgotten for silence."""
 _RECV_SIZE = 65_535
 
 
@@ -83,6 +86,7 @@ class UdpLink:
         self.name = config.name
         self.peer_timeout_ns = peer_timeout_ns
         self._peers: dict[Address, int] = {}
+        self._sim_peers: set[Address] = set()
         self.send_errors = 0
         self.recv_errors = 0
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -119,19 +123,24 @@ class UdpLink:
                     self.recv_errors += 1
                     log.debug("%s link: receive error %s", self.name, e)
                 continue
+            if data == LISTEN_HELLO:  # a mission's listening socket (pymavlink udpin): it gets what peers get
+                self._peers[(addr[0], addr[1])] = _FOREVER
+                self._sim_peers.add((addr[0], addr[1]))
+                continue
             yield data, (addr[0], addr[1])
 
     def heard(self, peer: Address, now_ns: int) -> None:
         """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too."""
-        self._peers[peer] = now_ns
+        self._peers[peer] = max(self._peers.get(peer, 0), now_ns)
 
-    def destinations(self, now_ns: int) -> list[Address]:
-        """The remote and the live peers (forgets peers silent longer than the timeout)."""
+    def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
+        """The remote and the live peers (forgets peers silent longer than the timeout); without the peers that
+        live on sim time (missions' sockets, which announced themselves) when ``sim_peers`` is False."""
         stale = [a for a, t in self._peers.items() if now_ns - t > self.peer_timeout_ns]
         for a in stale:
             del self._peers[a]
             log.info("%s link: forgot peer %s:%d (silent for over %.0f s)", self.name, *a, self.peer_timeout_ns / 1e9)
-        dests = list(self._peers)
+        dests = list(self._peers) if sim_peers else [a for a in self._peers if a not in self._sim_peers]
         remote = self.config.remote
         if remote is not None and remote not in self._peers:
             dests.append(remote)
