@@ -168,7 +168,7 @@ def _run(job: RunJob) -> dict[str, Any]:
             status or RunStatus.LOST,
             reason or f"harness run exited with {proc.returncode} and wrote no summary: {tail}",
         )
-    if status is not None:
+    if status is not None and row.get("status") not in FINISHED:  # a run that ended just before: its own result
         row["status"], row["message"] = str(status), reason
     row["worker"] = where
     return row
