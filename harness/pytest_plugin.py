@@ -36,7 +36,7 @@ import pytest
 
 from harness.autopilot.mathutil import quat_to_euler
 from harness.record.world import read_topics
-from harness.sweep.results import read_results
+from harness.sweep.results import RunStatus, read_results
 
 
 @dataclass
@@ -190,11 +190,13 @@ class SweepRecord:
 
     @property
     def ok(self) -> bool:
-        return self.returncode == 0 and bool(self.rows) and all(r.get("status") == "ok" for r in self.rows)
+        return self.returncode == 0 and bool(self.rows) and all(r.get("status") == RunStatus.OK for r in self.rows)
 
     @property
     def message(self) -> str:
-        bad = [f"{r['run']}: {r.get('status')}: {r.get('message')}" for r in self.rows if r.get("status") != "ok"]
+        bad = [
+            f"{r['run']}: {r.get('status')}: {r.get('message')}" for r in self.rows if r.get("status") != RunStatus.OK
+        ]
         return "\n".join([f"exit {self.returncode}", *bad, self.stderr[-2000:]])
 
     def column(self, name: str) -> list[Any]:

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.errors import ScenarioError
-from harness.sweep.results import read_results
+from harness.sweep.results import RunStatus, read_results
 
 _SKIP = {"seed", "faults", "mission_exit_code"}
 _RUN_METRICS = ("sim_time_s", "wall_time_s", "real_time_factor")
@@ -71,7 +71,7 @@ def make_sweep_plots(sweep_dir: Path) -> list[Path]:
                         continue
                     y = float(value)
                     xv = float(ticks.index(str(x))) if categorical else float(x)
-                    ok = r.get("status") == "ok"
+                    ok = r.get("status") == RunStatus.OK
                     pts = ax.plot([xv], [y], "o" if ok else "x", color=color if ok else "red", alpha=0.6)
                     if ok and color is None:
                         color = pts[0].get_color()
@@ -104,7 +104,7 @@ def _html(sweep_dir: Path, spec: dict[str, Any], rows: list[dict[str, Any]], ima
     cols = list(rows[0]) if rows else []
     head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(r.get(c)))}</td>" for c in cols) + "</tr>" for r in rows)
-    ok = sum(1 for r in rows if r.get("status") == "ok")
+    ok = sum(1 for r in rows if r.get("status") == RunStatus.OK)
     imgs = "".join(f'<h3>{html.escape(p.stem)}</h3><img src="{p.name}" style="max-width:100%">' for p in images)
     page = (
         "<!doctype html><html><head><meta charset='utf-8'><title>uav-harness sweep</title></head><body>"

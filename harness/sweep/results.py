@@ -14,6 +14,7 @@ Columns (``docs/sweep.md``):
 from __future__ import annotations
 
 import csv
+import enum
 import json
 import logging
 import math
@@ -27,6 +28,21 @@ log = logging.getLogger(__name__)
 RUN_FIELDS = ("status", "message", "sim_time_s", "wall_time_s", "real_time_factor")
 VEHICLE_FIELDS = ("mission_exit_code", "max_altitude_m", "landed", "armed", "crashed")
 _METRICS = re.compile(r"^metrics-(\d+)\.json$")
+
+
+class RunStatus(enum.StrEnum):
+    """A run's outcome in results.csv: the summary's status, or what the sweep saw when there is none."""
+
+    OK = "ok"
+    FAILED = "failed"
+    INTERRUPTED = "interrupted"
+    TIMEOUT = "timeout"
+    LOST = "lost"
+    """``harness run`` ended without writing a summary (killed, or a crash before it started)."""
+
+
+FINISHED = frozenset({RunStatus.OK, RunStatus.FAILED})
+"""A re-run keeps these; interrupted, timed-out and lost runs are run again."""
 
 
 def row_from_run_dir(run_dir: Path, params: Mapping[str, Any], seed: int) -> dict[str, Any]:

@@ -23,9 +23,9 @@ from pathlib import Path
 from typing import Any
 
 from harness.errors import ScenarioError, SimulationError
-from harness.sweep.results import write_results
+from harness.sweep.results import RunStatus, write_results
 from harness.sweep.spec import SweepSpec
-from harness.sweep.task import RunJob, RunStatus, finished_row, run_job
+from harness.sweep.task import RunJob, finished_row, run_job
 
 log = logging.getLogger(__name__)
 

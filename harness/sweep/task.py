@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import enum
 import json
 import os
 import shutil
@@ -26,25 +25,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harness.sweep.results import row_from_run_dir
+from harness.sweep.results import FINISHED, RunStatus, row_from_run_dir
 
 POLL_S = 0.25
 MARKER = "sweep-run.json"
-
-
-class RunStatus(enum.StrEnum):
-    """A run's outcome in results.csv: the summary's status, or what the sweep saw when there is none."""
-
-    OK = "ok"
-    FAILED = "failed"
-    INTERRUPTED = "interrupted"
-    TIMEOUT = "timeout"
-    LOST = "lost"
-    """``harness run`` ended without writing a summary (killed, or a crash before it started)."""
-
-
-FINISHED = frozenset({RunStatus.OK, RunStatus.FAILED})
-"""A re-run keeps these; interrupted, timed-out and lost runs are run again."""
 
 
 @dataclass(frozen=True)
