@@ -7,6 +7,7 @@ the one-line errors a scenario file would, prefixed with the ``--set`` that caus
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import re
 from collections.abc import Sequence
@@ -18,6 +19,7 @@ from harness.errors import ScenarioError
 from harness.scenario.config import load_scenario, parse_value
 
 _MAX_RUNS = 100_000
+_MAX_NAME = 120
 
 
 @dataclass(frozen=True)
@@ -121,8 +123,14 @@ def _slug(text: str) -> str:
 
 
 def run_name(seed: int, sets: Sequence[tuple[str, str]]) -> str:
-    """The run's directory: ``seed-3_wind.north_m_s-4`` (stable for the same command, so a re-run finds it)."""
-    return "_".join([f"seed-{seed}", *(f"{_slug(path)}-{_slug(text)}" for path, text in sets)])
+    """The run's directory: ``seed-3_wind.north_m_s-4`` (stable for the same command, so a re-run finds it).
+
+    Names longer than ``_MAX_NAME`` keep their start and end with a hash of the whole (file names are short)."""
+    name = "_".join([f"seed-{seed}", *(f"{_slug(path)}-{_slug(text)}" for path, text in sets)])
+    if len(name) <= _MAX_NAME:
+        return name
+    digest = hashlib.sha1(name.encode()).hexdigest()[:10]
+    return f"{name[: _MAX_NAME - 11]}_{digest}"
 
 
 def build_sweep(scenario: str | Path, seeds: str | None, sets: Sequence[str]) -> SweepSpec:

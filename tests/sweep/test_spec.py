@@ -10,7 +10,7 @@ import pytest
 
 from harness.errors import ScenarioError
 from harness.scenario.config import load_scenario, parse_value
-from harness.sweep.spec import build_sweep, parse_seeds, split_values
+from harness.sweep.spec import build_sweep, parse_seeds, run_name, split_values
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "wind_sweep.toml"
@@ -65,6 +65,13 @@ def test_cartesian_product_in_order_with_stable_names() -> None:
     # each run's values really reach the plan the run will be built from
     plan = load_scenario(EXAMPLE, sets=[("wind.north_m_s", 8)], seed=3)
     assert plan.wind_ned_m_s == (8.0, 0.0, 0.0) and plan.seed == 3 and plan.vehicles == 2
+
+
+def test_long_run_names_are_cut_with_a_hash() -> None:
+    long = [("vehicles.args", '["' + "x" * 300 + '"]')]
+    other = [("vehicles.args", '["' + "x" * 299 + 'y"]')]
+    a, b = run_name(1, long), run_name(1, other)
+    assert len(a) == 120 and a.startswith("seed-1_vehicles.args-xxx") and a != b and a == run_name(1, long)
 
 
 def test_two_parameters_and_the_files_seed_by_default(tmp_path: Path) -> None:
