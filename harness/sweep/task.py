@@ -70,8 +70,9 @@ def run_job(job: RunJob) -> dict[str, Any]:
     if job.slots is None:
         return _run(job)
     slots = _worker_slots(job.slots)
+    watch = _StopWatch(job.stop_event)
     while not slots.acquire(timeout=POLL_S):
-        if _should_stop(job) is not None:
+        if watch.why() is not None:
             return _row_without_summary(job, RunStatus.INTERRUPTED, "stopped before it started")
     try:
         return _run(job)
@@ -121,6 +122,7 @@ def _run(job: RunJob) -> dict[str, Any]:
     status: RunStatus | None = None
     reason = ""
     started = time.monotonic()
+    watch = _StopWatch(job.stop_event)
     try:
         while True:
             try:
@@ -131,7 +133,7 @@ def _run(job: RunJob) -> dict[str, Any]:
             if job.timeout_s is not None and time.monotonic() - started > job.timeout_s:
                 status, reason = RunStatus.TIMEOUT, f"stopped after {job.timeout_s:g} s of wall time (--run-timeout)"
             else:
-                why = _should_stop(job)
+                why = watch.why()
                 if why is not None:
                     status, reason = RunStatus.INTERRUPTED, why
             if status is not None:
@@ -181,26 +183,43 @@ def _stop(proc: subprocess.Popen[bytes], grace_s: float) -> None:
     proc.wait()
 
 
-def _should_stop(job: RunJob) -> str | None:
-    """Why the run must stop now (the sweep was stopped, the task cancelled, the scheduler gone), or None."""
-    try:
-        from distributed import Event, get_worker
+class _StopWatch:
+    """Why the run must stop now: the sweep's stop event is set (Ctrl-C on the client), Dask cancelled the
+    task (the client cancelled it or went away), or the scheduler cannot be asked. Outside a Dask worker (a
+    direct call) there is nothing to watch. The event, a call to the scheduler, is asked every
+    ``EVENT_EVERY_S``; the task's state, local to the worker, at every call."""
 
-        worker = get_worker()
-    except (ImportError, ValueError):
-        return None  # not inside a Dask worker (a direct call): nothing to watch
-    key = worker.get_current_task()
-    ts = worker.state.tasks.get(key) if key is not None else None
-    if ts is None or ts.state in ("cancelled", "released", "forgotten"):
-        return "the sweep cancelled the run"
-    if job.stop_event is None:
+    EVENT_EVERY_S = 0.5
+
+    def __init__(self, stop_event: str | None) -> None:
+        self.worker: Any = None
+        self.event: Any = None
+        self.next_ask = 0.0
+        try:
+            from distributed import Event, get_worker
+
+            self.worker = get_worker()
+        except (ImportError, ValueError):
+            return
+        self.key = self.worker.get_current_task()
+        if stop_event is not None:
+            self.event = Event(stop_event)
+
+    def why(self) -> str | None:
+        if self.worker is None:
+            return None
+        ts = self.worker.state.tasks.get(self.key) if self.key is not None else None
+        if ts is None or ts.state in ("cancelled", "released", "forgotten"):
+            return "the sweep cancelled the run"
+        if self.event is None or time.monotonic() < self.next_ask:
+            return None
+        self.next_ask = time.monotonic() + self.EVENT_EVERY_S
+        try:
+            if self.event.is_set():
+                return "the sweep was stopped (Ctrl-C)"
+        except Exception as exc:  # the scheduler is unreachable: nobody waits for this run any more
+            return f"lost the scheduler ({exc.__class__.__name__})"
         return None
-    try:
-        if Event(job.stop_event).is_set():
-            return "the sweep was stopped (Ctrl-C)"
-    except Exception as exc:  # the scheduler is unreachable: nobody waits for this run any more
-        return f"lost the scheduler ({exc.__class__.__name__})"
-    return None
 
 
 def _worker_name() -> str:
