@@ -96,6 +96,9 @@ def finished_row(run_dir: Path, params: Mapping[str, Any], seed: int) -> dict[st
 
 
 def _run(job: RunJob) -> dict[str, Any]:
+    watch = _StopWatch(job.stop_event)
+    if watch.why() is not None:  # queued while the sweep was being stopped: do not start it at all
+        return _row_without_summary(job, RunStatus.INTERRUPTED, "stopped before it started")
     run_dir = Path(job.run_dir)
     if run_dir.exists():
         if not (run_dir / MARKER).is_file() and any(run_dir.iterdir()):
@@ -122,7 +125,6 @@ def _run(job: RunJob) -> dict[str, Any]:
     status: RunStatus | None = None
     reason = ""
     started = time.monotonic()
-    watch = _StopWatch(job.stop_event)
     try:
         while True:
             try:

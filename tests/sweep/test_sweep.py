@@ -105,29 +105,30 @@ def test_ctrl_c_stops_every_run_and_a_rerun_completes_only_the_missing(tmp_path:
     short.touch()
     path = scenario(tmp_path, speed="1")  # the long runs idle at real time until `go` exists
     out = tmp_path / "sweep"
-    cmd = sweep_cmd(
-        path, out, "--seeds", "0-1", "--set", f'vehicles.args=["{short}"],["{go}"]', "--runs-per-worker", "4"
-    )
+    values = f'vehicles.args=["{short}"],["{go}"]'
+    cmd = sweep_cmd(path, out, "--seeds", "0-3", "--set", values, "--runs-per-worker", "2")  # 4 short, then 4 long
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    gone_s = interrupt_when(proc, out, ok_runs=2)
+    gone_s = interrupt_when(proc, out, ok_runs=4)  # 2 long runs going, 2 waiting for a thread
     stdout, stderr = proc.communicate(timeout=10)
     assert gone_s < 5.0, (gone_s, pids_under(out), stderr)
     assert proc.returncode == 130, stderr
-    assert stdout.startswith("sweep of 4 runs") and "interrupted: 4 run(s) this time" in stdout
+    assert stdout.startswith("sweep of 8 runs") and "interrupted: 8 run(s) this time" in stdout
     assert "re-run the same command to finish the missing runs" in stderr
     rows = {r["run"]: r for r in read_results(out / "results.csv")}
-    assert sorted(r["status"] for r in rows.values()) == ["interrupted", "interrupted", "ok", "ok"]
+    assert [r["status"] for r in rows.values()] == ["ok"] * 4 + ["interrupted"] * 4
     kept = {name: (out / name / "sweep-run.json").read_text() for name, r in rows.items() if r["status"] == "ok"}
     stopped = [name for name, r in rows.items() if r["status"] == "interrupted"]
-    for name in stopped:  # harness run was stopped by SIGTERM, not killed: it wrote its summary
+    started = [name for name in stopped if rows[name]["message"] != "stopped before it started"]
+    assert len(started) == 2, rows  # the queued ones were not started once the sweep was stopping
+    for name in started:  # harness run was stopped by SIGTERM, not killed: it wrote its summary
         assert json.loads((out / name / "summary.json").read_text())["status"] == "interrupted"
 
     go.touch()
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert again.returncode == 0, again.stderr
-    assert "2 run(s) this time, 2 kept from before" in again.stdout
+    assert "4 run(s) this time, 4 kept from before" in again.stdout
     rows = {r["run"]: r for r in read_results(out / "results.csv")}
-    assert len(rows) == 4 and all(r["status"] == "ok" for r in rows.values())
+    assert len(rows) == 8 and all(r["status"] == "ok" for r in rows.values())
     assert {name: (out / name / "sweep-run.json").read_text() for name in kept} == kept  # not run again
     assert all(rows[name]["v0.waited_s"] is not None for name in stopped)
     assert not pids_under(out)
