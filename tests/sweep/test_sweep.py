@@ -50,19 +50,20 @@ def sweep_cmd(scenario: Path, out: Path, *args: str) -> list[str]:
     return [sys.executable, "-m", "harness.cli", "sweep", str(scenario), "--out", str(out), *args]
 
 
-def interrupt_when(proc: subprocess.Popen[str], out: Path, ok_runs: int, timeout_s: float = 90) -> float:
-    """Wait for ``ok_runs`` finished runs while the others still run, then Ctrl-C the sweep; returns the
-    seconds until the sweep and every process of its runs were gone."""
+def interrupt_when(proc: subprocess.Popen[str], out: Path, ok_runs: int, running: int, timeout_s: float = 90) -> float:
+    """Wait for ``ok_runs`` finished runs and ``running`` runs under way (their missions started), then
+    Ctrl-C the sweep; returns the seconds until the sweep and every process of its runs were gone."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         done = [p for p in out.glob("*/summary.json") if json.loads(p.read_text())["status"] == "ok"]
-        if len(done) >= ok_runs and pids_under(out):
+        going = [d for d in out.glob("*/mission-0.stdout") if not (d.parent / "summary.json").exists()]
+        if len(done) >= ok_runs and len(going) >= running:
             break
         assert proc.poll() is None, proc.communicate()
         time.sleep(0.2)
     else:
-        raise AssertionError("the short runs did not finish in time")
-    time.sleep(1.0)  # the long runs are well under way
+        raise AssertionError(f"expected {ok_runs} runs done and {running} going within {timeout_s} s")
+    time.sleep(0.5)
     proc.send_signal(signal.SIGINT)
     t0 = time.monotonic()
     while time.monotonic() - t0 < 10:
@@ -108,7 +109,7 @@ def test_ctrl_c_stops_every_run_and_a_rerun_completes_only_the_missing(tmp_path:
     values = f'vehicles.args=["{short}"],["{go}"]'
     cmd = sweep_cmd(path, out, "--seeds", "0-3", "--set", values, "--runs-per-worker", "2")  # 4 short, then 4 long
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    gone_s = interrupt_when(proc, out, ok_runs=4)  # 2 long runs going, 2 waiting for a thread
+    gone_s = interrupt_when(proc, out, ok_runs=4, running=2)  # 2 long runs going, 2 waiting for a thread
     stdout, stderr = proc.communicate(timeout=10)
     assert gone_s < 5.0, (gone_s, pids_under(out), stderr)
     assert proc.returncode == 130, stderr
@@ -232,7 +233,7 @@ def test_sweep_on_a_scheduler_and_a_worker_process(tmp_path: Path, dask_cluster:
     out = tmp_path / "sweep"
     cmd = sweep_cmd(path, out, "--set", f'vehicles.args=["{short}"],["{go}"]', "--scheduler", dask_cluster)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    gone_s = interrupt_when(proc, out, ok_runs=1, timeout_s=120)  # the worker may still be registering
+    gone_s = interrupt_when(proc, out, ok_runs=1, running=1, timeout_s=120)  # the worker may still be registering
     _, stderr = proc.communicate(timeout=10)
     assert gone_s < 5.0 and proc.returncode == 130, (gone_s, pids_under(out), stderr)
 
