@@ -215,13 +215,7 @@ def _sweep_bar() -> Callable[[SweepProgress], None]:
     last_seen: list[tuple[int, str]] = [(-1, "")]
 
     def show(pr: SweepProgress) -> None:
-        width = 30
-        filled = width * pr.done // max(1, pr.total)
-        eta = f"  ~{pr.eta_s:.0f} s left" if pr.eta_s is not None and pr.done < pr.total else ""
-        line = (
-            f"[{'#' * filled}{'.' * (width - filled)}] {pr.done}/{pr.total} runs"
-            f"{f' ({pr.kept} kept)' if pr.kept else ''}  {pr.failed} not ok  {pr.elapsed_s:.0f} s{eta}"
-        )
+        line = pr.bar()
         if tty:
             sys.stderr.write("\r\033[K" + line)
             sys.stderr.flush()
@@ -233,7 +227,7 @@ def _sweep_bar() -> Callable[[SweepProgress], None]:
 
 
 def _cmd_sweep(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.sweep.runner import SweepOptions, run_sweep
+    from harness.sweep.runner import SweepOptions, quiet_dask, run_sweep
     from harness.sweep.spec import build_sweep
 
     if rest:
@@ -241,10 +235,7 @@ def _cmd_sweep(a: argparse.Namespace, rest: list[str]) -> int:
     spec = build_sweep(a.scenario, a.seeds, a.set)  # every combination validated before anything starts
     out = Path(a.out) if a.out else Path("runs") / f"sweep-{Path(a.scenario).stem}"
     opts = SweepOptions(out, a.scheduler, a.runs_per_worker, a.run_timeout, a.retry_failed)
-    import distributed  # noqa: F401 - configures its loggers on import; quieten them after that
-
-    if a.verbose == 0:
-        logging.getLogger("distributed").setLevel(logging.ERROR)
+    quiet_dask(a.verbose == 0)
     _terminate_as_interrupt()
     print(f"sweep of {len(spec.runs)} runs into {out}", flush=True)
     outcome = run_sweep(spec, opts, _sweep_bar())

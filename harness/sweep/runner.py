@@ -67,6 +67,25 @@ class SweepProgress:
     elapsed_s: float
     eta_s: float | None
     last: str = ""
+    """What just happened (``seed-3_wind.north_m_s-8: ok``, ``waiting for a Dask worker ...``)."""
+
+    def bar(self, width: int = 30) -> str:
+        """``[#######.......] 2/8 runs  0 not ok  10 s  ~30 s left``."""
+        filled = width * self.done // max(1, self.total)
+        eta = f"  ~{self.eta_s:.0f} s left" if self.eta_s is not None and self.done < self.total else ""
+        kept = f" ({self.kept} kept)" if self.kept else ""
+        return (
+            f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total} runs{kept}  "
+            f"{self.failed} not ok  {self.elapsed_s:.0f} s{eta}"
+        )
+
+
+def quiet_dask(quiet: bool) -> None:
+    """Dask's own INFO logging off unless asked for (``-v``); its loggers are set up when it is imported."""
+    import distributed  # noqa: F401
+
+    if quiet:
+        logging.getLogger("distributed").setLevel(logging.ERROR)
 
 
 @dataclass

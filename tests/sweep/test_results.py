@@ -117,3 +117,10 @@ def test_metrics_report_merges_and_is_quiet_outside_a_run(tmp_path: Path, monkey
     assert json.loads(path.read_text()) == {"max_drift_m": 0.75, "ok": True, "nan": None}
     with pytest.raises(TypeError, match="metric bad"):
         metrics.report(bad=[1, 2])  # type: ignore[arg-type]
+
+
+def test_progress_bar_line() -> None:
+    from harness.sweep.runner import SweepProgress
+
+    assert SweepProgress(8, 2, 0, 1, 10.4, 30.2).bar(8) == "[##......] 2/8 runs  1 not ok  10 s  ~30 s left"
+    assert SweepProgress(8, 8, 4, 0, 61.0, 0.0).bar(8) == "[########] 8/8 runs (4 kept)  0 not ok  61 s"
