@@ -19,6 +19,7 @@ from harness.sweep.results import read_results
 
 pytestmark = pytest.mark.sim
 WAIT_FOR_FILE = Path(__file__).resolve().parent / "scripts" / "wait_for_file.py"
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def scenario(tmp_path: Path, speed: str = '"max"') -> Path:
@@ -98,6 +99,21 @@ def test_local_sweep_table_plugin_and_plots(tmp_path: Path, harness_sweep: Calla
     assert {"real_time_factor_vs_vehicles_count.png", "vehicle_vs_vehicles_args.png"} <= pngs
     assert all((sweep.out / name).stat().st_size > 1000 for name in pngs)
     assert "seed-4_vehicles.count-2" in (sweep.out / "index.html").read_text()
+
+
+def test_the_wind_example_reports_drift_that_grows_with_the_wind(harness_sweep: Callable[..., SweepRecord]) -> None:
+    """scenarios/wind_sweep.toml as shipped (2 MAVSDK vehicles), hovering 8 s instead of 20, in 0 and 8 m/s."""
+    sweep = harness_sweep(
+        ROOT / "scenarios" / "wind_sweep.toml", seeds="1", sets={"wind.north_m_s": [0, 8], "vehicles.args": [["8"]]}
+    )
+    assert sweep.ok, sweep.message
+    calm, windy = sweep.rows
+    for row in sweep.rows:
+        for v in (0, 1):
+            assert row[f"v{v}.samples"] >= 70  # 10 Hz position telemetry over 8 s of hover
+            assert row[f"v{v}.rms_alt_error_m"] < 0.3 and 9.7 < row[f"v{v}.max_altitude_m"] < 10.5
+            assert row[f"v{v}.landed"] is True and row[f"v{v}.mission_exit_code"] == 0
+    assert max(calm["v0.max_drift_m"], calm["v1.max_drift_m"]) < min(windy["v0.max_drift_m"], windy["v1.max_drift_m"])
 
 
 def test_ctrl_c_stops_every_run_and_a_rerun_completes_only_the_missing(tmp_path: Path) -> None:
