@@ -124,3 +124,33 @@ def test_progress_bar_line() -> None:
 
     assert SweepProgress(8, 2, 0, 1, 10.4, 30.2).bar(8) == "[##......] 2/8 runs  1 not ok  10 s  ~30 s left"
     assert SweepProgress(8, 8, 4, 0, 61.0, 0.0).bar(8) == "[########] 8/8 runs (4 kept)  0 not ok  61 s"
+
+
+def test_runs_per_worker_caps_the_runs_at_once_in_a_worker(monkeypatch: pytest.MonkeyPatch) -> None:
+    """--runs-per-worker with a scheduler: a per-process semaphore around each run (the run itself stubbed)."""
+    import threading
+    import time
+
+    from harness.sweep import task
+
+    lock = threading.Lock()
+    now = [0]
+    peak = [0]
+
+    def fake_run(job: task.RunJob) -> dict[str, object]:
+        with lock:
+            now[0] += 1
+            peak[0] = max(peak[0], now[0])
+        time.sleep(0.2)
+        with lock:
+            now[0] -= 1
+        return {"run": job.name, "status": "ok"}
+
+    monkeypatch.setattr(task, "_run", fake_run)
+    jobs = [task.RunJob(f"r{i}", "s.toml", f"/nonexistent/r{i}", i, (), slots=2) for i in range(6)]
+    threads = [threading.Thread(target=task.run_job, args=(j,)) for j in jobs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10)
+    assert peak[0] == 2 and now[0] == 0
