@@ -144,6 +144,11 @@ class SimRuntime:
     def run_phase(self, t_ns: int, idle_poll_s: float = 0.001) -> tuple[int, bool]:
         """One phase 0 at sim time ``t_ns``: wake what is due, run until idle. Clock thread only.
 
+        Wake-ups come in two rounds, each run until the script is idle: first the threads whose I/O or
+        notification arrived since the last phase (a reader thread handles the telemetry of this tick), then
+        the timed waits that fall due (a thread polling with ``time.sleep`` sees what the reader stored). So
+        the order of the two is the same at any pace, not the order in which the threads happen to run.
+
         Returns the lookahead for END-TICK-0: the earliest deadline of a timed wait (``NO_DEADLINE`` when
         there is none) and whether a delivered packet would wake a waiting thread.
         """
@@ -154,24 +159,28 @@ class SimRuntime:
             self._now_ns = t_ns
             self._started = True
             self._gate_open = True
-            due = [w for w in self._timed if w.deadline_ns is not None and w.deadline_ns <= t_ns]
-            for w in due:
-                w.timed_out = True
-                self._release_locked(w)
             gated, self._gate_waiters = self._gate_waiters, []
             for w in gated:
                 self._release_locked(w)
-            self.stats.waits_released += len(due) + len(gated)
+            self.stats.waits_released += len(gated)
         report_at = start + _REPORT_AFTER_NS
         while True:
             with self._mu:
                 idle = self._all_idle_locked()
-                settled = self.mavlink_sent == self._mavlink_synced or self.settle_mavlink is None
-                if idle and settled:
-                    self._gate_open = False
-                    self._wake_requested = False
-                    lookahead = self._lookahead_locked()
-                    break
+                if idle and (self.mavlink_sent == self._mavlink_synced or self.settle_mavlink is None):
+                    due = [
+                        w for w in self._timed if not w.released and w.deadline_ns is not None and w.deadline_ns <= t_ns
+                    ]
+                    if not due:  # the decision "idle" and closing the gate are one step under the lock
+                        self._gate_open = False
+                        self._wake_requested = False
+                        lookahead = self._lookahead_locked()
+                        break
+                    for w in due:  # second round: the timed waits, once the I/O of this tick is handled
+                        w.timed_out = True
+                        self._release_locked(w)
+                    self.stats.waits_released += len(due)
+                    continue
             if idle:
                 self._settle()
                 continue
@@ -308,9 +317,6 @@ class SimRuntime:
                 return w
             self._idle[w.ident] = w
             self._by_lock[id(lock)] = w
-            # a thread that waits on the sim clock (a library's worker: DroneKit's writer) is part of the
-            # script from now on: once woken in phase 0, phase 0 ends only after it is idle again
-            self._script_threads[w.ident] = True
             if deadline_ns is not None:
                 self._timed.append(w)
             if inbox:
@@ -407,11 +413,6 @@ class SimRuntime:
     def has_delivery(self, port: int) -> bool:
         return any(d.port == port for d in self.inbox)
 
-    def track_current_thread(self) -> None:
-        """The calling thread waits for I/O of the script (a library's reader thread: pymavlink, DroneKit):
-        from now on phase 0 also waits for it to be idle, so what it reads is handled on the sim clock."""
-        self._script_threads[_thread.get_ident()] = True
-
     def queue_packet(self, dst: int, port: int, payload: bytes) -> None:
         """ENQUEUE a packet for the network; sent before this phase's END-TICK-0."""
         with self._mu:
@@ -501,7 +502,12 @@ class SimRuntime:
         frames: dict[int, FrameType] | None = None
         for t in threading.enumerate():
             ident = t.ident
-            if ident is None or t.name.startswith(INFRA_THREAD_PREFIX) or isinstance(t, threading._DummyThread):
+            if t.name.startswith(INFRA_THREAD_PREFIX) or isinstance(t, threading._DummyThread):
+                continue
+            if ident is None:  # being started (Thread.start waits for it): it runs in this phase, so wait for it
+                busy.append((t, "starting"))
+                if first_only:
+                    break
                 continue
             if ident in self._done_threads or ident in self._idle:
                 continue
@@ -531,6 +537,8 @@ _LIBRARY_ROOTS = tuple(
     }
 )
 _WORKER_CODE = {("thread.py", "_worker")}
+_SERVICE_MODULES = frozenset({"grpc", "mavsdk_grpc", "mavsdk"})
+"""Libraries whose own threads sit outside the simulation (see ``_is_script_thread``)."""
 
 
 def _thread_code_is_script(t: threading.Thread) -> bool:
@@ -546,7 +554,13 @@ def _thread_code_is_script(t: threading.Thread) -> bool:
     filename = getattr(module, "__file__", None) or (code.co_filename if code is not None else "")
     if not filename or not os.path.isabs(filename):
         return True  # unknown origin: be safe, wait for it
-    return not filename.startswith(_LIBRARY_ROOTS)
+    if not filename.startswith(_LIBRARY_ROOTS):
+        return True
+    # A library's thread works for the script (DroneKit's reader and writer, pymavlink's, a timer): it must be
+    # idle for phase 0 to end, from its first moment on — else what it does at start-up lands in whichever
+    # phase the machine's pace gives it. Only service threads of libraries that block in C for the whole run
+    # and reach the script through its gated event loop stay outside (gRPC's poller, mavsdk-grpc's readers).
+    return module_name.split(".", 1)[0] not in _SERVICE_MODULES
 
 
 _current: SimRuntime | None = None

@@ -126,6 +126,7 @@ class MavlinkServer:
         self._home_on_first_fix = home_on_first_fix
         self._home_try_ns: int | None = None
         self._stepping = False
+        self._first_t_ns: int | None = None
         """True while the autopilot's stepping thread services this server (the bell), at sim time."""
         self.codec = Codec(self.sysid, self.compid, signing, unix_ns)
         mav = self.codec.mav
@@ -281,6 +282,8 @@ class MavlinkServer:
             # a mission's runtime asks whether all it sent before is handled: yes (one socket, in order);
             # what that caused (a forced heartbeat, a STATUSTEXT, a due message) goes out before the answer
             self._service(now)
+            while self.params.busy:  # a parameter list it asked for goes out now, not paced on the wall clock
+                self._send_all(self.params.tick(), now)
             self.links[link].send(data, addr)
             return
         self._count("datagrams_rx")
@@ -295,8 +298,11 @@ class MavlinkServer:
                 self._count("refused_bad_signature")
             elif d.message is not None:
                 self._count("frames_rx")
-                self.links[link].heard(addr, now)
                 m = d.message
+                if self.links[link].heard(addr, now) and link == 0:
+                    # a new client on the API link (MAVSDK connecting out) hears from us at once, not at the
+                    # next heartbeat: it discovers the vehicle while a starting mission holds the sim clock
+                    self._send(Out(heartbeat_message(self.codec.mav, self.api.state()), Origin(link, addr, 0, 0)), now)
                 if self._tap is not None:
                     self._tap(bytes(m.get_msgbuf()))
                 origin = Origin(link, addr, m.get_srcSystem(), m.get_srcComponent())
@@ -388,7 +394,11 @@ class MavlinkServer:
 
     def _tick(self, now: int) -> None:
         state = self.api.state()
-        at_sim_time = self._stepping or self._ring_at is None  # not a wall-clock wake-up of the hub
+        if self._first_t_ns is None:
+            self._first_t_ns = state.t_ns
+        # decided at sim time: by the stepping thread (the bell), or by the hub when nobody steps the autopilot
+        # (it has not moved since this server started); never by the hub during a long phase of a mission
+        at_sim_time = self._stepping or self._ring_at is None or state.t_ns == self._first_t_ns
         if self._home_on_first_fix and state.home is None and at_sim_time and self._set_home_at_first_fix(state):
             state = self.api.state()
         self._sim_moving = state.t_ns > self._t_ns

@@ -129,9 +129,12 @@ class UdpLink:
                 continue
             yield data, (addr[0], addr[1])
 
-    def heard(self, peer: Address, now_ns: int) -> None:
-        """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too."""
+    def heard(self, peer: Address, now_ns: int) -> bool:
+        """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too.
+        True when it is a new peer."""
+        new = peer not in self._peers
         self._peers[peer] = max(self._peers.get(peer, 0), now_ns)
+        return new
 
     def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
         """The remote and the live peers (forgets peers silent longer than the timeout); without the peers that
