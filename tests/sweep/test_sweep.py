@@ -157,16 +157,17 @@ def test_failures_are_rows_and_the_sweep_goes_on(tmp_path: Path) -> None:
     path = scenario(tmp_path, speed="1")
     out = tmp_path / "sweep"
     values = f'vehicles.args=["{short}"],["fail"],["{tmp_path / "never"}"]'
-    cmd = sweep_cmd(path, out, "--set", values, "--run-timeout", "8", "--runs-per-worker", "3")  # ok runs take ~1 s
-    first = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    # one at a time, so that under load an ok run (~1-2 s) never comes near the timeout
+    cmd = sweep_cmd(path, out, "--set", values, "--runs-per-worker", "1")
+    first = subprocess.run([*cmd, "--run-timeout", "10"], capture_output=True, text=True, timeout=120)
     assert first.returncode == 1, first.stderr
     rows = read_results(out / "results.csv")
     assert [r["status"] for r in rows] == ["ok", "failed", "timeout"]
     assert "the mission of vehicle 0 exited with 3" in rows[1]["message"] and rows[1]["v0.mission_exit_code"] == 3
-    assert rows[2]["message"] == "stopped after 8 s of wall time (--run-timeout)"
+    assert rows[2]["message"] == "stopped after 10 s of wall time (--run-timeout)"
     assert not pids_under(out)
     # a re-run keeps ok runs (and failed ones, unless --retry-failed) and tries timed-out ones again
-    retry = subprocess.run([*cmd, "--retry-failed"], capture_output=True, text=True, timeout=120)
+    retry = subprocess.run([*cmd, "--retry-failed", "--run-timeout", "2"], capture_output=True, text=True, timeout=120)
     assert "2 run(s) this time, 1 kept from before" in retry.stdout, retry.stderr
 
 
