@@ -18,6 +18,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
+from concurrent.futures import CancelledError
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -84,8 +85,10 @@ def quiet_dask(quiet: bool) -> None:
     """Dask's own INFO logging off unless asked for (``-v``); its loggers are set up when it is imported."""
     import distributed  # noqa: F401
 
-    if quiet:
-        logging.getLogger("distributed").setLevel(logging.ERROR)
+    if quiet:  # the sweep reports what matters (a lost scheduler, failed runs) in its own words
+        names = [n for n in logging.root.manager.loggerDict if n == "distributed" or n.startswith("distributed.")]
+        for name in ["distributed", *names]:  # Dask's config gives some children their own level
+            logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 @dataclass
@@ -212,6 +215,11 @@ def _drive(
                 done, _ = wait(list(pending), timeout=1.0, return_when="FIRST_COMPLETED")
             except TimeoutError:  # distributed's wait raises instead of returning nothing done
                 done = set()
+            except CancelledError:  # the client lost its scheduler: Dask cancelled every future
+                raise SimulationError(
+                    f"lost the connection to the Dask scheduler; {len(pending)} run(s) did not finish "
+                    "(their workers stopped them): re-run the same command to finish them"
+                ) from None
             pending -= set(done)
             collect(set(done))
             if done:
