@@ -3,6 +3,7 @@ plus a worker started as separate processes), results.csv, plots, Ctrl-C with no
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -10,6 +11,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -190,18 +192,26 @@ def test_a_killed_sweep_leaves_no_process(tmp_path: Path) -> None:
     assert time.monotonic() - t0 < 5.0
 
 
+@dataclass
+class DaskCluster:
+    address: str
+    scheduler: subprocess.Popen[bytes]
+    worker: subprocess.Popen[bytes]
+
+
 @pytest.fixture
-def dask_cluster(tmp_path: Path) -> Iterator[str]:
+def dask_cluster(tmp_path: Path) -> Iterator[DaskCluster]:
     """`dask scheduler` and one `dask worker` (2 threads) as separate processes on loopback."""
     sched_file = tmp_path / "scheduler.json"
-    procs = []
+    procs: list[subprocess.Popen[bytes]] = []
 
-    def start(*args: str) -> None:
+    def start(*args: str) -> subprocess.Popen[bytes]:
         log = (tmp_path / f"dask-{len(procs)}.log").open("w")
         procs.append(subprocess.Popen(args, stdout=log, stderr=log, start_new_session=True))
+        return procs[-1]
 
     try:
-        start(
+        scheduler = start(
             sys.executable,
             "-m",
             "distributed.cli.dask_scheduler",
@@ -214,10 +224,13 @@ def dask_cluster(tmp_path: Path) -> Iterator[str]:
             str(sched_file),
         )
         deadline = time.monotonic() + 60
-        while not sched_file.is_file() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        address = json.loads(sched_file.read_text())["address"]
-        start(
+        address = ""
+        while not address and time.monotonic() < deadline:
+            try:
+                address = json.loads(sched_file.read_text())["address"]
+            except (OSError, ValueError, KeyError):
+                time.sleep(0.1)
+        worker = start(
             sys.executable,
             "-m",
             "distributed.cli.dask_worker",
@@ -230,10 +243,11 @@ def dask_cluster(tmp_path: Path) -> Iterator[str]:
             "--name",
             "test-worker",
         )
-        yield address
+        yield DaskCluster(address, scheduler, worker)
     finally:
         for p in reversed(procs):
-            os.killpg(p.pid, signal.SIGTERM)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
         for p in procs:
             try:
                 p.wait(10)
@@ -242,13 +256,13 @@ def dask_cluster(tmp_path: Path) -> Iterator[str]:
                 p.wait()
 
 
-def test_sweep_on_a_scheduler_and_a_worker_process(tmp_path: Path, dask_cluster: str) -> None:
+def test_sweep_on_a_scheduler_and_a_worker_process(tmp_path: Path, dask_cluster: DaskCluster) -> None:
     go = tmp_path / "go"
     short = tmp_path / "short"
     short.touch()
     path = scenario(tmp_path, speed="1")
     out = tmp_path / "sweep"
-    cmd = sweep_cmd(path, out, "--set", f'vehicles.args=["{short}"],["{go}"]', "--scheduler", dask_cluster)
+    cmd = sweep_cmd(path, out, "--set", f'vehicles.args=["{short}"],["{go}"]', "--scheduler", dask_cluster.address)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     gone_s = interrupt_when(proc, out, ok_runs=1, running=1, timeout_s=120)  # the worker may still be registering
     _, stderr = proc.communicate(timeout=10)
@@ -262,4 +276,32 @@ def test_sweep_on_a_scheduler_and_a_worker_process(tmp_path: Path, dask_cluster:
     assert [r["status"] for r in rows] == ["ok", "ok"]
     assert all(r["worker"].startswith("tcp://127.0.0.1:") for r in rows)  # ran on the worker process
     assert rows[1]["v0.vehicle"] == 0 and rows[1]["v0.waited_s"] is not None
+    assert not pids_under(out)
+
+
+def test_a_lost_scheduler_ends_the_sweep_in_one_line_and_stops_the_runs(
+    tmp_path: Path, dask_cluster: DaskCluster
+) -> None:
+    path = scenario(tmp_path, speed="1")
+    out = tmp_path / "sweep"
+    proc = subprocess.Popen(
+        sweep_cmd(path, out, "--seeds", "0-1", "--scheduler", dask_cluster.address),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while len(list(out.glob("*/mission-0.stdout"))) < 2 and time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.2)
+    dask_cluster.scheduler.kill()
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert stderr.strip().splitlines()[-1] == (
+        "harness: lost the connection to the Dask scheduler; 2 run(s) did not finish (their workers stopped "
+        "them): re-run the same command to finish them"
+    )
+    t0 = time.monotonic()
+    while pids_under(out) and time.monotonic() - t0 < 10:
+        time.sleep(0.1)
     assert not pids_under(out)
