@@ -140,6 +140,9 @@ def build_sweep(scenario: str | Path, seeds: str | None, sets: Sequence[str]) ->
     seed_list = parse_seeds(seeds) if seeds is not None else (base.seed,)
     params = tuple(parse_set(s) for s in sets)
     paths = [p.path for p in params]
+    for path, instead in (("seed", "sweep seeds with --seeds"), ("out", "the sweep puts each run under --out")):
+        if path in paths:
+            raise ScenarioError(f"--set {path}: not a sweep parameter ({instead})")
     for path in paths:
         if paths.count(path) > 1:
             raise ScenarioError(f"--set {path}: given twice (list every value in one --set {path}=V1,V2,...)")

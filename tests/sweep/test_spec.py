@@ -98,6 +98,8 @@ def test_two_parameters_and_the_files_seed_by_default(tmp_path: Path) -> None:
         (["wind.north_m_s=1", "wind.north_m_s=2"], "--set wind.north_m_s: given twice"),
         (["vehicles[3].mission=x"], "--set vehicles[3].mission: vehicles has 0 entries in the scenario, no [3]"),
         (["seed.x=1"], "--set seed.x: seed is not a table in the scenario"),
+        (["seed=1,2"], "--set seed: not a sweep parameter (sweep seeds with --seeds)"),
+        (["out=a,b"], "--set out: not a sweep parameter (the sweep puts each run under --out)"),
         (
             ["network.model=builtin", "network.params.bitrate=1e6"],
             "--set network.model=builtin --set network.params.bitrate=1e6: network.params.bitrate: unknown parameter",
