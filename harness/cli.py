@@ -10,7 +10,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from harness.errors import HarnessError, ScenarioError
 
@@ -101,6 +101,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             duration_s=a.duration,
             network=a.network,
             progress=_progress_printer(),
+            **_firmware_options(a),
         )
 
     missions = [MissionPlan(Path(m), tuple(script_args or ())) for m in a.mission]
@@ -123,7 +124,25 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         progress=_progress_printer(),
         pause_at_s=a.pause_at,
         pause_wall_s=a.pause_for,
+        **_firmware_options(a),
     )
+
+
+def _firmware_options(a: argparse.Namespace) -> dict[str, Any]:
+    """--firmware (one for all vehicles or comma-separated per vehicle) and, for `harness sitl`, the
+    addresses ArduPilot SITL users expect: SERIAL0 on TCP 5760 + 10 i, UDP outputs 14550 and 14551."""
+    from harness.autopilot.firmware import Firmware
+
+    out: dict[str, Any] = {}
+    if a.firmware:
+        out["firmware"] = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
+    if a.command == "sitl":
+        out["tcp_port_base"] = a.tcp_port_base if a.tcp_port_base is not None else 5760
+        out["tcp_port_step"] = 10
+        out["gcs_extra_ports"] = (14551,)
+    elif a.tcp_port_base is not None:
+        out["tcp_port_base"] = a.tcp_port_base
+    return out
 
 
 def _terminate_as_interrupt() -> None:
@@ -207,6 +226,19 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--seed", type=int, default=None)
     r.add_argument("--out", default=None, help="run directory (default runs/<timestamp>)")
     r.add_argument("--plot", action="store_true", help="write plots into the run directory at the end")
+    r.add_argument(
+        "--firmware",
+        default=None,
+        metavar="px4|ardupilot",
+        help="the personality of the vehicles (comma-separated: per vehicle); default px4",
+    )
+    r.add_argument(
+        "--tcp-port-base",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="ArduPilot vehicles' SERIAL0 TCP ports (sitl: 5760 + 10 i; run: the run's own port block)",
+    )
     r.add_argument(
         "--pause-at", type=float, default=None, metavar="SIM_S", help="stall test: stop the clock at this sim time"
     )
