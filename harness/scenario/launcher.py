@@ -31,7 +31,7 @@ from harness.autopilot.firmware import Firmware, firmware_of
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.world import WorldRecorder
-from harness.scenario.ports import allocate
+from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep, real_time_ns
@@ -72,8 +72,12 @@ class LaunchPlan:
     """False: ideal sensors (rates and latency stay)."""
     spawn_ned_m: tuple[tuple[float, float, float], ...] | None = None
     params: tuple[dict[str, float], ...] = ()
-    api_port_base: int = 14540
-    gcs_port: int = 14550
+    api_port_base: int = PX4_API_BASE
+    """Vehicle ``i`` listens for its mission on UDP ``api_port_base + i`` (PX4 SITL's 14580 + i when free)."""
+    gcs_port: int = GCS_PORT
+    api_remote_base: int = 0
+    """Vehicle ``i`` also sends to UDP ``api_remote_base + i`` unasked (``harness sitl``: 14540, where hand-run
+    MAVSDK scripts listen); 0 = only to the peers that spoke to it (``harness run``: its own missions)."""
     record_hz: float = 50.0
     pause_at_s: float | None = None
     """Stand the clock still once sim time reaches this, for ``pause_wall_s`` of wall time (stall tests)."""
@@ -270,13 +274,12 @@ class Launcher:
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         local: list[Any] = []
-        with Children(plan.out) as sup:
+        with ports, Children(plan.out) as sup:  # the block stays this run's until every process has stopped
             try:
-                ports.release()
-                if plan.progress is not None:  # only now: a ground station may bind the GCS port once it reads this
+                if plan.progress is not None:
                     plan.progress(
-                        f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i sends to udp port "
-                        f"{self.api_port_base}+i (a script's udpin://0.0.0.0:{self.api_port_base} reaches vehicle 0)"
+                        f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
+                        f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
                     )
                     ardupilot = [i for i in range(n) if plan.firmware_of(i) is Firmware.ARDUPILOT]
                     if ardupilot:
@@ -371,7 +374,10 @@ class Launcher:
             )
             for i in range(plan.vehicles)
         }
-        ports = PortsConfig(api_port_base=self.api_port_base, gcs_port=self.gcs_port)
+        # each vehicle binds its API port; missions connect out to it, and nothing goes to anyone else's port
+        ports = PortsConfig(
+            api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
+        )
         hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
         handles: list[Any] = []
         try:
@@ -408,6 +414,8 @@ class Launcher:
                     "--vehicles",
                     vehicles,
                     "--api-port-base",
+                    str(plan.api_remote_base),
+                    "--api-local-port-base",
                     str(self.api_port_base),
                     "--gcs-port",
                     str(self.gcs_port),

@@ -345,6 +345,23 @@ class SimRuntime:
             w.lock.acquire()
             self.finish_wait(w)
 
+    def pop_delivery(self, port: int) -> Delivery | None:
+        """The oldest delivered packet for ``port``, or None at once (script threads, in phase 0)."""
+        inbox = self.inbox
+        for i, d in enumerate(inbox):
+            if d.port == port:
+                del inbox[i]
+                return d
+        return None
+
+    def has_delivery(self, port: int) -> bool:
+        return any(d.port == port for d in self.inbox)
+
+    def track_current_thread(self) -> None:
+        """The calling thread waits for I/O of the script (a library's reader thread: pymavlink, DroneKit):
+        from now on phase 0 also waits for it to be idle, so what it reads is handled on the sim clock."""
+        self._script_threads[_thread.get_ident()] = True
+
     def queue_packet(self, dst: int, port: int, payload: bytes) -> None:
         """ENQUEUE a packet for the network; sent before this phase's END-TICK-0."""
         with self._mu:

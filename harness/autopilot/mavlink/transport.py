@@ -17,12 +17,15 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from harness.errors import ScenarioError
+from harness.simclock.endpoints import LISTEN_HELLO
 
 log = logging.getLogger(__name__)
 
 Address = tuple[str, int]
 
 PEER_TIMEOUT_NS = 10_000_000_000
+_FOREVER = 1 << 62
+"""Last-heard time of a peer that announced itself as a listener: never forgotten for silence."""
 _RECV_SIZE = 65_535
 
 
@@ -38,6 +41,9 @@ class LinkConfig:
 @dataclass(frozen=True, slots=True)
 class PortsConfig:
     """Port plan (DESIGN.md): vehicle ``i`` sends to ``api_port_base + i`` and to ``gcs_port``.
+
+    ``api_port_base = 0``: the API link sends only to the peers that spoke to it (``harness run``: each
+    mission connects out to its own vehicle, and no other run's listener can hear it).
 
     ``api_local_port_base`` / ``gcs_local_port_base``: 0 binds any free port (no collisions between
     parallel runs); otherwise the vehicle binds ``base + i`` (PX4 SITL uses 14580 and 18570), which is what
@@ -80,7 +86,8 @@ class PortsConfig:
         def local(base: int) -> Address:
             return (self.bind_host, base + vehicle if base else 0)
 
-        links = [LinkConfig("api", local(self.api_local_port_base), (self.remote_host, self.api_port_base + vehicle))]
+        api_remote = (self.remote_host, self.api_port_base + vehicle) if self.api_port_base else None
+        links = [LinkConfig("api", local(self.api_local_port_base), api_remote)]
         if self.gcs_port:
             links.append(LinkConfig("gcs", local(self.gcs_local_port_base), (self.remote_host, self.gcs_port)))
         for i, port in enumerate(self.gcs_extra_ports):
@@ -151,11 +158,14 @@ class UdpLink:
                     self.recv_errors += 1
                     log.debug("%s link: receive error %s", self.name, e)
                 continue
+            if data == LISTEN_HELLO:  # a mission's listening socket (pymavlink udpin): it gets what peers get
+                self._peers[(addr[0], addr[1])] = _FOREVER
+                continue
             yield data, (addr[0], addr[1])
 
     def heard(self, peer: Address, now_ns: int) -> None:
         """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too."""
-        self._peers[peer] = now_ns
+        self._peers[peer] = max(self._peers.get(peer, 0), now_ns)
 
     def destinations(self, now_ns: int) -> list[Address]:
         """The remote and the live peers (forgets peers silent longer than the timeout)."""
