@@ -21,7 +21,17 @@ if expected is not None and master.target_system != int(expected):
 
 # ATTITUDE at 10 Hz, then count what arrives in 2 s
 master.mav.command_long_send(
-    master.target_system, master.target_component, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 30, 100_000, 0, 0, 0, 0, 0
+    master.target_system,
+    master.target_component,
+    mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+    0,
+    30,
+    100_000,
+    0,
+    0,
+    0,
+    0,
+    0,
 )
 start = time.time()
 boot_ms = []

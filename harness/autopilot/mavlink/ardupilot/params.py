@@ -66,7 +66,9 @@ CORE_DEFAULTS: dict[str, float] = {
 """Core parameter defaults of an ArduCopter vehicle (ArduCopter's defaults in core units)."""
 
 STREAM_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA1", "EXTRA2", "EXTRA3", "PARAMS")
-"""The ``SRx_*`` stream-rate parameters (Hz), x = the link (0 SERIAL0 = TCP, 1 the API UDP port, 2 the GCS)."""
+"""The ``SRx_*`` stream-rate parameters (Hz), x = the link (0 SERIAL0 = TCP, 1 the API UDP port, 2 the GCS).
+The server has one stream schedule for all links: a group goes out at the fastest rate of SR0..SR2, with
+the defaults on SR0 (TCP) and 0 on the others: a request on TCP sets the rate, one on UDP can only raise it."""
 
 STREAM_DEFAULT_HZ: dict[str, float] = {
     "RAW_SENS": 0.0,
@@ -112,8 +114,8 @@ def own_defs(sysid: int) -> tuple[ParamDef, ...]:
         _own_i("AHRS_EKF_TYPE", 3, 0, 11),
         _own_i("EK3_ENABLE", 1, 0, 1),
     ]
-    for x in range(LINKS):
-        defs += [_own(f"SR{x}_{g}", STREAM_DEFAULT_HZ[g], 0.0, 50.0, "Hz") for g in STREAM_GROUPS]
+    for x in range(LINKS):  # defaults on SR0; a link's request raises its own SRx
+        defs += [_own(f"SR{x}_{g}", STREAM_DEFAULT_HZ[g] if x == 0 else 0.0, 0.0, 50.0, "Hz") for g in STREAM_GROUPS]
     return tuple(defs)
 
 
