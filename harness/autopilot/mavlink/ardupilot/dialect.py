@@ -112,6 +112,7 @@ class CopterDialect:
         self.stream_defaults: Mapping[int, int] = {**self._intervals(), _M.MAVLINK_MSG_ID_HEARTBEAT: HEARTBEAT_NS}
         self._host: DialectHost | None = None
         self._yaw_hold: float | None = None
+        self._yaw_core_mode: FlightMode | None = None
         self._roi: tuple[float, float, float] | None = None
         self._prearm_next_ns = 0
         self.params.subscribe(self._param_changed)
@@ -274,7 +275,7 @@ class CopterDialect:
             yaw = st.yaw_rad + (-yaw if direction < 0 else yaw)
         r = self._set_yaw(yaw)
         if r.ok:
-            self._yaw_hold, self._roi = yaw, None
+            self._yaw_hold, self._roi, self._yaw_core_mode = yaw, None, st.mode
         return CommandOutcome(r)
 
     def _set_yaw(self, yaw: float | None) -> CommandResult:
@@ -379,6 +380,9 @@ class CopterDialect:
 
     # ------------------------------------------------------------------ periodic
     def tick(self, state: VehicleState, now: int) -> list[Out]:
+        if self._yaw_hold is not None and state.mode is not self._yaw_core_mode and state.in_air:
+            self._yaw_core_mode = state.mode  # the core entered a mode (end of takeoff, velocity targets):
+            self._set_yaw(self._yaw_hold)  # ArduCopter keeps the CONDITION_YAW heading within GUIDED
         if self._roi is not None and state.armed and state.in_air:
             lat, lon, _alt = self._roi
             dn = math.radians(lat - state.lat_deg) * _EARTH_R_M
