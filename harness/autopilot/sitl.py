@@ -102,10 +102,13 @@ def attach_mavlink(
 def vehicle_ports(
     base: PortsConfig, firmware: Firmware, tcp_port_base: int, tcp_port_step: int, extra: tuple[int, ...]
 ) -> PortsConfig:
-    """A vehicle's ports: ArduPilot vehicles add SERIAL0 on TCP and the extra UDP outputs ArduPilot users expect."""
+    """A vehicle's ports. ArduPilot vehicles add SERIAL0 on TCP and the extra UDP outputs ArduPilot users expect,
+    and send nothing unasked to PX4's script port 14540 + i (a PX4 script there must not find an ArduCopter)."""
     if firmware is not Firmware.ARDUPILOT:
         return base
-    return dataclasses.replace(base, tcp_port_base=tcp_port_base, tcp_port_step=tcp_port_step, gcs_extra_ports=extra)
+    return dataclasses.replace(
+        base, api_port_base=0, tcp_port_base=tcp_port_base, tcp_port_step=tcp_port_step, gcs_extra_ports=extra
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
