@@ -46,6 +46,7 @@ MAPPED: tuple[Mapped, ...] = (
     Mapped("ANGLE_MAX", "MPC_TILTMAX_AIR", 100.0, unit="cdeg"),
     Mapped("BATT_CAPACITY", "BAT_CAPACITY", 1.0, ParamType.INT32, "mAh"),
     Mapped("MOT_THST_HOVER", "MPC_THR_HOVER", 1.0),
+    Mapped("THR_MIN", "MPC_THR_MIN", 1000.0),  # ArduCopter 3.x name (DroneKit's vehicle_state.py reads it)
     Mapped("PSC_POSXY_P", "MPC_XY_P", 1.0),
     Mapped("PSC_POSZ_P", "MPC_Z_P", 1.0),
     Mapped("ATC_ANG_RLL_P", "MC_ROLL_P", 1.0),
