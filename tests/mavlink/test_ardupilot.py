@@ -292,3 +292,25 @@ def test_items_dropped_seq_zero_renumbered() -> None:
     items = [MissionItem(i, 3, 16, x=1, y=1, z=5.0) for i in range(3)]
     assert api.upload_mission(items).ok
     assert [it.seq for it in core.got] == [0, 1]
+
+
+def test_refusals_read_as_ardupilot_words() -> None:
+    from harness.autopilot.api import Severity, StatusText
+    from harness.autopilot.mavlink.ardupilot.adapter import copter_text
+
+    said = copter_text(StatusText(0, Severity.CRITICAL, "Arming denied: no 3D GPS fix (fix type 1)"))
+    assert said.text == "PreArm: no 3D GPS fix (fix type 1)"
+    assert copter_text(StatusText(0, Severity.INFO, "Mission item 2 reached")).text == "Reached command #3"
+
+
+def test_arming_refused_outside_armable_modes(copter: tuple[Rig, Client, int]) -> None:
+    _rig, c, _port = copter
+    c.recv("HEARTBEAT")
+    assert c.mode("BRAKE").result == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_DENIED
+    assert c.recv("STATUSTEXT", 3.0, lambda m: "Arm:" in m.text).text == "Arm: Mode not armable"
+    assert c.mode("LOITER").result == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    assert (
+        c.recv("HEARTBEAT", 3.0, lambda m: m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED).custom_mode == CopterMode.LOITER
+    )

@@ -67,7 +67,9 @@ CMD_DO_SET_ROI = 201
 CMD_DO_SET_ROI_LOCATION = 195
 CMD_DO_SET_ROI_NONE = 197
 PREARM_REPORT_NS = 30_000_000_000
-"""ArduPilot repeats its failing pre-arm check every 30 s while disarmed."""
+"""ArduPilot repeats its failing pre-arm check every 30 s while disarmed ..."""
+PREARM_FIRST_NS = 3_000_000_000
+"""... and the first report waits for 3 s of sim time (sensors and estimator starting up: no IMU data yet at t=0)."""
 _EARTH_R_M = 6_371_000.0
 HEARTBEAT_NS = 1_000_000_000
 """HEARTBEAT is also a 1 Hz stream on the sim clock: DroneKit and pymavlink scripts run on sim time, and
@@ -389,7 +391,8 @@ class CopterDialect:
             de = math.radians(lon - state.lon_deg) * _EARTH_R_M * math.cos(math.radians(state.lat_deg))
             if math.hypot(dn, de) > 1.0:
                 self._set_yaw(math.atan2(de, dn))
-        if not state.armed and not state.health.preflight_ok and now >= self._prearm_next_ns:
+        booting = state.t_ns < PREARM_FIRST_NS
+        if not state.armed and not booting and not state.health.preflight_ok and now >= self._prearm_next_ns:
             check: Callable[[], str] | None = getattr(self._core, "arming_check", None)
             reason = check() if check is not None and int(self.params["ARMING_CHECK"]) != 0 else ""
             if reason and self._host is not None:
