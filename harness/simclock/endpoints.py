@@ -25,6 +25,10 @@ LISTEN_HELLO = b"HARNESS-LISTEN\n"
 """Datagram a script's redirected listening socket sends its vehicle: 'send me what you send your mission'
 (a script that only listens, like pymavlink's ``udpin:`` before it has sent anything, is heard this way)."""
 
+SETTLE_PREFIX = b"HARNESS-SETTLE "
+"""Datagram a mission's runtime sends its vehicle after the script's MAVLink: the vehicle echoes it once it
+has handled everything that arrived before it (one socket, handled in order), answers included."""
+
 _LOCAL_HOSTS = frozenset({"", "0.0.0.0", "127.0.0.1", "localhost", "::", "::1"})
 _URL = re.compile(r"^(?P<scheme>[a-z]+)://(?P<host>\[[^\]]*\]|[^:/]*)(?::(?P<port>\d+))?(?P<rest>.*)$")
 

@@ -66,9 +66,16 @@ def wait(
         with contextlib.suppress(BlockingIOError, OSError):
             os.write(w, b"\0")
 
-    waiter = rt.new_waiter(deadline_ns=deadline_ns, wake=wake, inbox=inbox)
-    rl = [*rfds, r]
-    wl = list(wfds)
+    rl, wl = list(rfds), list(wfds)
+    waiter = rt.new_waiter(
+        deadline_ns=deadline_ns,
+        wake=wake,
+        inbox=inbox,
+        rfds=tuple(rl),
+        wfds=tuple(wl),
+        every_phase=any(fd in rt.mavlink_fds for fd in rl),
+    )
+    rl.append(r)
     while True:
         try:
             real_select(rl, wl, [], None)

@@ -64,6 +64,8 @@ class _AliasFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 def _patch_grpc(ep: VehicleEndpoints | None) -> None:
+    from harness.simclock.runtime import current
+
     system_mod = importlib.import_module("mavsdk_grpc.system")
     System = system_mod.System
     if getattr(System, "_harness_patched", False):
@@ -82,7 +84,14 @@ def _patch_grpc(ep: VehicleEndpoints | None) -> None:
         url = system_address or "udpin://0.0.0.0:14540"
         url = mavsdk_url(url, ep) if ep is not None else url
         log.info("mavsdk (gRPC API): connecting to %s", url)
-        return await orig_connect(self, system_address=url)
+        rt = current()
+        if rt is None or not rt._tracked():
+            return await orig_connect(self, system_address=url)
+        rt.hold()  # starting mavsdk_server and discovering the vehicle take no sim time (as a request does)
+        try:
+            return await orig_connect(self, system_address=url)
+        finally:
+            rt.unhold()
 
     System.__init__ = __init__
     System.connect = connect

@@ -27,6 +27,7 @@ from typing import Any, TypeVar
 from harness.simclock import iowait
 from harness.simclock.endpoints import (
     LISTEN_HELLO,
+    SETTLE_PREFIX,
     VehicleEndpoints,
     tcp_destination,
     udp_destination,
@@ -107,10 +108,30 @@ class SimSocket(_original_socket):
     def _is_inet_dgram(self) -> bool:
         return self.family == _socket.AF_INET and self.type == _socket.SOCK_DGRAM
 
+    _mavlink = False
+
+    def _mark_mavlink(self) -> None:
+        """This socket talks to the vehicle: its waits follow every phase, its sends are settled."""
+        self._mavlink = True
+        if _rt is not None:
+            _rt.mavlink_fds.add(self.fileno())
+
+    def _sent(self) -> None:
+        if self._mavlink and _rt is not None:
+            _rt.mavlink_sent += 1
+            if _rt._tracked():
+                _rt.track_current_thread()  # a library's writer thread (DroneKit's): phase 0 waits for it too
+
+    def close(self) -> None:
+        if self._mavlink and _rt is not None:
+            _rt.mavlink_fds.discard(self.fileno())
+        super().close()
+
     def _map_udp(self, address: Any) -> Any:
         if _ep is not None and self._is_inet_dgram() and isinstance(address, tuple):
             dst = udp_destination(address[0], int(address[1]), _ep)
             if dst is not None:
+                self._mark_mavlink()
                 return dst
         return address
 
@@ -124,6 +145,7 @@ class SimSocket(_original_socket):
         ):
             super().bind(("127.0.0.1", 0))
             super().sendto(LISTEN_HELLO, (ep.host, ep.udp_port))
+            self._mark_mavlink()
             return
         super().bind(address)
 
@@ -131,7 +153,10 @@ class SimSocket(_original_socket):
         ep = _ep
         if ep is not None and isinstance(address, tuple) and self.family == _socket.AF_INET:
             if self.type == _socket.SOCK_STREAM:
-                address = tcp_destination(address[0], int(address[1]), ep) or address
+                dst = tcp_destination(address[0], int(address[1]), ep)
+                if dst is not None:
+                    address = dst
+                    self._mark_mavlink()
             else:
                 address = self._map_udp(address)
         if self.type != _socket.SOCK_STREAM or _rt is None or self._timeout() == 0.0:
@@ -178,7 +203,9 @@ class SimSocket(_original_socket):
         return self._blocking(lambda: _original_socket.accept(self))
 
     def send(self, data: Any, flags: int = 0) -> int:
-        return self._blocking(lambda: _original_socket.send(self, data, flags), write=True)
+        n = self._blocking(lambda: _original_socket.send(self, data, flags), write=True)
+        self._sent()
+        return n
 
     def sendall(self, data: Any, flags: int = 0) -> None:
         view = memoryview(data).cast("B")
@@ -190,13 +217,43 @@ class SimSocket(_original_socket):
         *flags, address = args
         address = self._map_udp(address)
         raw_sendto: Any = _original_socket.sendto
-        return self._blocking(lambda: int(raw_sendto(self, data, *flags, address)), write=True)
+        n = self._blocking(lambda: int(raw_sendto(self, data, *flags, address)), write=True)
+        self._sent()
+        return n
+
+
+class _Settler:
+    """Asks the vehicle to confirm that it has handled the script's MAVLink (``SimRuntime.settle_mavlink``)."""
+
+    def __init__(self, ep: VehicleEndpoints) -> None:
+        self._dst = (ep.host, ep.udp_port)
+        self._sock = _original_socket(_socket.AF_INET, _socket.SOCK_DGRAM)
+        self._sock.bind(("127.0.0.1", 0))
+        self._sock.setblocking(False)
+        self._seq = 0
+
+    def __call__(self, timeout_s: float = 2.0) -> bool:
+        self._seq += 1
+        token = SETTLE_PREFIX + str(self._seq).encode()
+        self._sock.sendto(token, self._dst)
+        while True:
+            r, _, _ = iowait.real_select([self._sock], [], [], timeout_s)
+            if not r:
+                return False
+            try:
+                data = self._sock.recv(64)
+            except OSError:
+                continue
+            if data == token:
+                return True
 
 
 def install(rt: SimRuntime, ep: VehicleEndpoints | None, cls: type[SimSocket] = SimSocket) -> None:
     """Sockets created from now on are ``cls`` (mission processes only)."""
     global _rt, _ep
     _rt, _ep = rt, ep
+    if ep is not None:
+        rt.settle_mavlink = _Settler(ep)
     _socket.socket = cls  # type: ignore[misc]
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import select
 import selectors
 import socket
 import struct
@@ -74,7 +75,11 @@ class TcpLink:
         self.sock.setblocking(False)
         self._feed.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
         self._clients: dict[Address, socket.socket] = {}
+        self._heard: set[Address] = set()
         self._lock = threading.Lock()
+        self._io_lock = threading.Lock()
+        """Serialises reading the clients (reader thread, and ``drain`` on the hub thread)."""
+        self._buffers: dict[Address, bytearray] = {}
         self._stop_r, self._stop_w = socket.socketpair()
         self._thread = threading.Thread(target=self._run, name=f"mavlink-tcp-{self.local_address[1]}", daemon=True)
         self._thread.start()
@@ -92,7 +97,7 @@ class TcpLink:
         sel = selectors.DefaultSelector()
         sel.register(self._listener, selectors.EVENT_READ, None)
         sel.register(self._stop_r, selectors.EVENT_READ, "stop")
-        buffers: dict[Address, bytearray] = {}
+        buffers = self._buffers
         try:
             while True:
                 for key, _ in sel.select():
@@ -115,27 +120,51 @@ class TcpLink:
         addr: Address = (raw[0], raw[1])
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         conn.settimeout(self.send_timeout_s)
+        buffers[addr] = bytearray()
         with self._lock:
             self._clients[addr] = conn
-        buffers[addr] = bytearray()
         sel.register(conn, selectors.EVENT_READ, addr)
         log.info("%s link: client %s:%d connected", self.name, *addr)
 
     def _read(
         self, sel: selectors.BaseSelector, conn: socket.socket, addr: Address, buffers: dict[Address, bytearray]
     ) -> None:
-        try:
-            data = conn.recv(65536)
-        except (BlockingIOError, TimeoutError):
+        with self._io_lock:
+            if not select.select([conn], [], [], 0)[0]:
+                return  # ``drain`` took it
+            try:
+                data = conn.recv(65536)
+            except (BlockingIOError, TimeoutError):
+                return
+            except OSError:
+                data = b""
+            if data:
+                self._frames(addr, data)
+                return
+        sel.unregister(conn)
+        buffers.pop(addr, None)
+        self._drop(addr, "closed the connection")
+
+    def drain(self) -> None:
+        """Pass on, now, every frame the clients have sent so far (the hub thread, before it confirms to a
+        mission that all it sent is handled: over loopback, what a client sent is in our socket already)."""
+        with self._lock:
+            clients = list(self._clients.items())
+        with self._io_lock:
+            for addr, conn in clients:
+                try:
+                    while select.select([conn], [], [], 0)[0]:
+                        data = conn.recv(65536)
+                        if not data:
+                            break  # the reader thread sees the end and drops the client
+                        self._frames(addr, data)
+                except (OSError, ValueError):
+                    continue
+
+    def _frames(self, addr: Address, data: bytes) -> None:
+        buf = self._buffers.get(addr)
+        if buf is None:
             return
-        except OSError:
-            data = b""
-        if not data:
-            sel.unregister(conn)
-            buffers.pop(addr, None)
-            self._drop(addr, "closed the connection")
-            return
-        buf = buffers[addr]
         buf += data
         tag = _TAG.pack(socket.inet_aton(addr[0]), addr[1])
         for frame in take_frames(buf):
@@ -149,6 +178,7 @@ class TcpLink:
     def _drop(self, addr: Address, why: str) -> None:
         with self._lock:
             conn = self._clients.pop(addr, None)
+            self._heard.discard(addr)
         if conn is not None:
             log.info("%s link: client %s:%d %s", self.name, addr[0], addr[1], why)
             with contextlib.suppress(OSError):
@@ -169,10 +199,17 @@ class TcpLink:
             ip, port = _TAG.unpack_from(data)
             yield data[_TAG.size :], (socket.inet_ntoa(ip), port)
 
-    def heard(self, peer: Address, now_ns: int) -> None:
-        """Connected clients are peers for as long as they stay connected."""
+    def heard(self, peer: Address, now_ns: int) -> bool:
+        """Connected clients are peers for as long as they stay connected; True for a client's first frame."""
+        with self._lock:
+            new = peer in self._clients and peer not in self._heard
+            if new:
+                self._heard.add(peer)
+            return new
 
-    def destinations(self, now_ns: int) -> list[Address]:
+    def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
+        """Every connected client: over TCP a mission's socket cannot be told from a ground station's, so
+        clients also get what goes out on the wall clock (``sim_peers`` is ignored)."""
         with self._lock:
             return list(self._clients)
 

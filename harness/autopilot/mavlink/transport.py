@@ -108,8 +108,8 @@ class Link(Protocol):
     @property
     def local_address(self) -> Address: ...
     def receive(self, max_datagrams: int) -> Iterator[tuple[bytes, Address]]: ...
-    def heard(self, peer: Address, now_ns: int) -> None: ...
-    def destinations(self, now_ns: int) -> list[Address]: ...
+    def heard(self, peer: Address, now_ns: int) -> bool: ...
+    def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]: ...
     def send(self, data: bytes, addr: Address) -> bool: ...
     def close(self) -> None: ...
 
@@ -122,6 +122,7 @@ class UdpLink:
         self.name = config.name
         self.peer_timeout_ns = peer_timeout_ns
         self._peers: dict[Address, int] = {}
+        self._sim_peers: set[Address] = set()
         self.send_errors = 0
         self.recv_errors = 0
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -160,20 +161,25 @@ class UdpLink:
                 continue
             if data == LISTEN_HELLO:  # a mission's listening socket (pymavlink udpin): it gets what peers get
                 self._peers[(addr[0], addr[1])] = _FOREVER
+                self._sim_peers.add((addr[0], addr[1]))
                 continue
             yield data, (addr[0], addr[1])
 
-    def heard(self, peer: Address, now_ns: int) -> None:
-        """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too."""
+    def heard(self, peer: Address, now_ns: int) -> bool:
+        """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too.
+        True when it is a new peer."""
+        new = peer not in self._peers
         self._peers[peer] = max(self._peers.get(peer, 0), now_ns)
+        return new
 
-    def destinations(self, now_ns: int) -> list[Address]:
-        """The remote and the live peers (forgets peers silent longer than the timeout)."""
+    def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
+        """The remote and the live peers (forgets peers silent longer than the timeout); without the peers that
+        live on sim time (missions' sockets, which announced themselves) when ``sim_peers`` is False."""
         stale = [a for a, t in self._peers.items() if now_ns - t > self.peer_timeout_ns]
         for a in stale:
             del self._peers[a]
             log.info("%s link: forgot peer %s:%d (silent for over %.0f s)", self.name, *a, self.peer_timeout_ns / 1e9)
-        dests = list(self._peers)
+        dests = list(self._peers) if sim_peers else [a for a in self._peers if a not in self._sim_peers]
         remote = self.config.remote
         if remote is not None and remote not in self._peers:
             dests.append(remote)

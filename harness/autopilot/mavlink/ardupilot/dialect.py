@@ -71,10 +71,6 @@ PREARM_REPORT_NS = 30_000_000_000
 PREARM_FIRST_NS = 3_000_000_000
 """... and the first report waits for 3 s of sim time (sensors and estimator starting up: no IMU data yet at t=0)."""
 _EARTH_R_M = 6_371_000.0
-HEARTBEAT_NS = 1_000_000_000
-"""HEARTBEAT is also a 1 Hz stream on the sim clock: DroneKit and pymavlink scripts run on sim time, and
-DroneKit gives up after 30 s (warns after 5 s) of *its* time without one, which at x50 is 0.6 s of wall
-time (the wall-clock heartbeat of the server alone would leave them silent that long)."""
 
 CAPABILITIES = (
     _M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
@@ -107,11 +103,8 @@ class CopterDialect:
         self.params = CopterParams(registry if isinstance(registry, Params) else Params(), sysid)
         self.api: AutopilotApi = CopterApi(core, self.params)
         self.modes = ModeTracker()
-        self.builders: Mapping[int, Builder] = {
-            apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report,
-            _M.MAVLINK_MSG_ID_HEARTBEAT: lambda mav, state, _t: self.heartbeat(mav, state),
-        }
-        self.stream_defaults: Mapping[int, int] = {**self._intervals(), _M.MAVLINK_MSG_ID_HEARTBEAT: HEARTBEAT_NS}
+        self.builders: Mapping[int, Builder] = {apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report}
+        self.stream_defaults: Mapping[int, int] = self._intervals()
         self._host: DialectHost | None = None
         self._yaw_hold: float | None = None
         self._yaw_core_mode: FlightMode | None = None
