@@ -226,7 +226,6 @@ class Autopilot:
             c.ground_pd = c.est.pd
             c.nav.enter(c.mode, True)
             self._say(Severity.INFO, "Armed")
-            self._cache = None  # the next state() shows it armed (a takeoff may follow at once)
             return CommandResult.accepted()
 
     def disarm(self, force: bool = False) -> CommandResult:

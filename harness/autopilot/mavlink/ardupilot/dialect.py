@@ -110,6 +110,8 @@ class CopterDialect:
         self._yaw_core_mode: FlightMode | None = None
         self._roi: tuple[float, float, float] | None = None
         self._prearm_next_ns = 0
+        self._armed_at_t_ns: int | None = None
+        """Sim time of the state snapshot when an ARM was accepted (the snapshot shows it from the next tick)."""
         self.params.subscribe(self._param_changed)
 
     def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None:
@@ -243,12 +245,13 @@ class CopterDialect:
         r = self.api.arm(not checks)
         if not r.ok:
             r = CommandResult(r.result, copter_text_reason(r.reason))
+        self._armed_at_t_ns = st.t_ns if r.ok else None
         return CommandOutcome(r, mode_or_arming_changed=r.ok)
 
     def _takeoff(self, cmd: CommandIn) -> CommandOutcome:
         alt = cmd.params[6]
         st = self.api.state()
-        if not st.armed:
+        if not (st.armed or st.t_ns == self._armed_at_t_ns):  # armed, or just now (a takeoff may follow at once)
             return CommandOutcome(CommandResult.denied("Takeoff: vehicle not armed"))
         shown = self.modes.shown(st.mode)
         if shown not in USER_TAKEOFF:
