@@ -208,7 +208,10 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540)
     print(f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time; Ctrl-C stops.", flush=True)
     result = Launcher(plan).run()
-    return 0 if result.status in ("ok", "interrupted") else 1
+    if result.status not in ("ok", "interrupted"):
+        print(f"harness sitl: {result.status}: {result.message}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:

@@ -385,10 +385,12 @@ class Launcher:
                 fw = plan.firmware_of(i)
                 vp = vehicle_ports(ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports)
                 handles.append(attach_mavlink(ap, vp, plan.out, None, hub, fw))
-        except Exception:
+        except Exception as exc:
             for h in handles:
                 h.close()
             hub.stop()
+            if isinstance(exc, ScenarioError):  # a port taken by another simulator: one line, not a traceback
+                raise SimulationError(str(exc)) from None
             raise
         handles.append(hub)
 
