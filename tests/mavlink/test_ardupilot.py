@@ -314,3 +314,12 @@ def test_arming_refused_outside_armable_modes(copter: tuple[Rig, Client, int]) -
     assert (
         c.recv("HEARTBEAT", 3.0, lambda m: m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED).custom_mode == CopterMode.LOITER
     )
+
+
+def test_sys_status_shows_the_fence_enabled_only_with_fence_enable(copter: tuple[Rig, Client, int]) -> None:
+    from harness.autopilot.mavlink.telemetry import SENSOR_GEOFENCE
+
+    _rig, c, _port = copter
+    assert not c.recv("SYS_STATUS").onboard_control_sensors_enabled & SENSOR_GEOFENCE
+    c.conn.mav.param_set_send(1, 1, b"FENCE_ENABLE", 1.0, M.MAV_PARAM_TYPE_INT32)
+    c.recv("SYS_STATUS", 5.0, lambda m: m.onboard_control_sensors_enabled & SENSOR_GEOFENCE)

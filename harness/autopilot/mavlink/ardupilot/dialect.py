@@ -52,7 +52,7 @@ from harness.autopilot.mavlink.ardupilot.streams import (
 )
 from harness.autopilot.mavlink.commands import FORCE_MAGIC, CommandIn, CommandOutcome
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, is_set
-from harness.autopilot.mavlink.telemetry import Builder
+from harness.autopilot.mavlink.telemetry import SENSOR_GEOFENCE, Builder, sys_status
 from harness.autopilot.params import Params
 from harness.autopilot.validate import finite
 
@@ -103,7 +103,10 @@ class CopterDialect:
         self.params = CopterParams(registry if isinstance(registry, Params) else Params(), sysid)
         self.api: AutopilotApi = CopterApi(core, self.params)
         self.modes = ModeTracker()
-        self.builders: Mapping[int, Builder] = {apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report}
+        self.builders: Mapping[int, Builder] = {
+            apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report,
+            _M.MAVLINK_MSG_ID_SYS_STATUS: self._sys_status,
+        }
         self.stream_defaults: Mapping[int, int] = self._intervals()
         self._host: DialectHost | None = None
         self._yaw_hold: float | None = None
@@ -145,6 +148,13 @@ class CopterDialect:
             0x4841524E45535300 | sysid,
             [0] * 18,
         )
+
+    def _sys_status(self, mav: mavlink2.MAVLink, state: VehicleState, t_ms: int) -> MAVLinkMessage:
+        """SYS_STATUS with the geofence *enabled* only when FENCE_ENABLE = 1 (MAVProxy says "fence enabled")."""
+        msg = sys_status(mav, state, t_ms)
+        if int(self.params["FENCE_ENABLE"]) != 1:
+            msg.onboard_control_sensors_enabled &= ~SENSOR_GEOFENCE
+        return msg
 
     # ------------------------------------------------------------------ streams
     def _intervals(self) -> dict[int, int]:
