@@ -100,14 +100,24 @@ def attach_mavlink(
 
 
 def vehicle_ports(
-    base: PortsConfig, firmware: Firmware, tcp_port_base: int, tcp_port_step: int, extra: tuple[int, ...]
+    base: PortsConfig,
+    firmware: Firmware,
+    tcp_port_base: int,
+    tcp_port_step: int,
+    extra: tuple[int, ...],
+    tcp_sim_clients: bool = False,
 ) -> PortsConfig:
     """A vehicle's ports. ArduPilot vehicles add SERIAL0 on TCP and the extra UDP outputs ArduPilot users expect,
     and send nothing unasked to PX4's script port 14540 + i (a PX4 script there must not find an ArduCopter)."""
     if firmware is not Firmware.ARDUPILOT:
         return base
     return dataclasses.replace(
-        base, api_port_base=0, tcp_port_base=tcp_port_base, tcp_port_step=tcp_port_step, gcs_extra_ports=extra
+        base,
+        api_port_base=0,
+        tcp_port_base=tcp_port_base,
+        tcp_port_step=tcp_port_step,
+        gcs_extra_ports=extra,
+        tcp_sim_clients=tcp_sim_clients,
     )
 
 
@@ -126,6 +136,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--tcp-port-base", type=int, default=0, help="ArduPilot vehicles listen on TCP base + step*i")
     ap.add_argument("--tcp-port-step", type=int, default=1)
     ap.add_argument("--gcs-extra-ports", default="", help="comma-separated extra UDP outputs of ArduPilot vehicles")
+    ap.add_argument("--tcp-sim-clients", action="store_true", help="TCP clients are missions on sim time (a run)")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
@@ -149,7 +160,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             ),
             attach=lambda autopilot: attach_mavlink(
                 autopilot,
-                vehicle_ports(base, firmware_of(firmwares, autopilot.vehicle), a.tcp_port_base, a.tcp_port_step, extra),
+                vehicle_ports(
+                    base,
+                    firmware_of(firmwares, autopilot.vehicle),
+                    a.tcp_port_base,
+                    a.tcp_port_step,
+                    extra,
+                    a.tcp_sim_clients,
+                ),
                 a.run_dir,
                 signing,
                 hub,

@@ -235,6 +235,9 @@ class Launcher:
         """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
+        self._tcp_sim_clients = plan.api_remote_base == 0
+        """A batch run (nothing sent unasked to hand-run tools): the ArduPilot vehicles' TCP clients are its
+        missions, on sim time; `harness sitl` serves hand-run tools on the wall clock there."""
 
     def run(self) -> RunResult:
         from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
@@ -383,7 +386,9 @@ class Launcher:
         try:
             for i, ap in aps.items():
                 fw = plan.firmware_of(i)
-                vp = vehicle_ports(ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports)
+                vp = vehicle_ports(
+                    ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports, self._tcp_sim_clients
+                )
                 handles.append(attach_mavlink(ap, vp, plan.out, None, hub, fw))
         except Exception as exc:
             for h in handles:
@@ -433,6 +438,7 @@ class Launcher:
                     str(plan.tcp_port_step),
                     "--gcs-extra-ports",
                     ",".join(str(p) for p in plan.gcs_extra_ports),
+                    *(["--tcp-sim-clients"] if self._tcp_sim_clients else []),
                 ],
                 env=env,
             )

@@ -140,7 +140,7 @@ class MavlinkServer:
         tcp = self.ports.tcp_local(vehicle)
         if tcp is not None:
             try:
-                self.links.append(TcpLink("tcp", tcp))
+                self.links.append(TcpLink("tcp", tcp, sim_clients=self.ports.tcp_sim_clients))
             except Exception:
                 for lk in self.links:
                     lk.close()

@@ -54,8 +54,11 @@ def take_frames(buf: bytearray) -> list[bytes]:
 class TcpLink:
     """A listening TCP socket with its clients, served through the hub like a UDP link."""
 
-    def __init__(self, name: str, local: Address, send_timeout_s: float = 1.0) -> None:
+    def __init__(self, name: str, local: Address, send_timeout_s: float = 1.0, sim_clients: bool = False) -> None:
         self.name = name
+        self.sim_clients = sim_clients
+        """Clients live on sim time (``harness run``: the missions): what goes out on the wall clock only (the
+        1 Hz wall heartbeat, wall-rate telemetry) is not sent to them, so the same seed gives the same flight."""
         self.send_timeout_s = send_timeout_s
         self.send_errors = 0
         self.recv_errors = 0
@@ -208,8 +211,10 @@ class TcpLink:
             return new
 
     def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
-        """Every connected client: over TCP a mission's socket cannot be told from a ground station's, so
-        clients also get what goes out on the wall clock (``sim_peers`` is ignored)."""
+        """Every connected client; none for wall-clock traffic (``sim_peers`` False) when the clients are on
+        sim time."""
+        if self.sim_clients and not sim_peers:
+            return []
         with self._lock:
             return list(self._clients)
 

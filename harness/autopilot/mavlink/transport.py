@@ -61,6 +61,8 @@ class PortsConfig:
     tcp_port_base: int = 0
     """ArduPilot's SERIAL0: vehicle ``i`` listens on TCP ``tcp_port_base + tcp_port_step * i`` (0: no TCP)."""
     tcp_port_step: int = 1
+    tcp_sim_clients: bool = False
+    """The TCP clients are missions on sim time (``harness run``); ground stations connect over UDP."""
 
     def tcp_local(self, vehicle: int) -> Address | None:
         """The TCP address vehicle ``vehicle`` listens on, or None without a TCP link."""
