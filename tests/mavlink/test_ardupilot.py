@@ -323,3 +323,19 @@ def test_sys_status_shows_the_fence_enabled_only_with_fence_enable(copter: tuple
     assert not c.recv("SYS_STATUS").onboard_control_sensors_enabled & SENSOR_GEOFENCE
     c.conn.mav.param_set_send(1, 1, b"FENCE_ENABLE", 1.0, M.MAV_PARAM_TYPE_INT32)
     c.recv("SYS_STATUS", 5.0, lambda m: m.onboard_control_sensors_enabled & SENSOR_GEOFENCE)
+
+
+def test_tcp_clients_come_and_go(copter: tuple[Rig, Client, int]) -> None:
+    rig, c, port = copter
+    c.recv("HEARTBEAT")
+    for _ in range(3):  # connect, talk, hang up: the link keeps serving the others and new ones
+        other = Client(port)
+        other.conn.mav.param_request_read_send(1, 1, b"FRAME_CLASS", -1)
+        assert other.recv("PARAM_VALUE", 3.0, lambda m: m.param_id == "FRAME_CLASS").param_value == 1.0
+        other.close()
+    assert c.recv("HEARTBEAT").autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA
+    tcp = next(lk for lk in rig.server.links if lk.name == "tcp")
+    end = time.monotonic() + 3.0
+    while len(tcp.destinations(0)) != 1 and time.monotonic() < end:
+        time.sleep(0.05)
+    assert len(tcp.destinations(0)) == 1  # only the first client is left

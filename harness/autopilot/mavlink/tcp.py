@@ -113,6 +113,10 @@ class TcpLink:
         except Exception:
             log.exception("%s link: reader thread failed", self.name)
         finally:
+            for key in list(sel.get_map().values()):
+                if key.data not in (None, "stop"):
+                    with contextlib.suppress(OSError):
+                        key.fileobj.close()  # type: ignore[union-attr]
             sel.close()
 
     def _accept(self, sel: selectors.BaseSelector, buffers: dict[Address, bytearray]) -> None:
@@ -133,20 +137,23 @@ class TcpLink:
         self, sel: selectors.BaseSelector, conn: socket.socket, addr: Address, buffers: dict[Address, bytearray]
     ) -> None:
         with self._io_lock:
-            if not select.select([conn], [], [], 0)[0]:
-                return  # ``drain`` took it
             try:
+                if not select.select([conn], [], [], 0)[0]:
+                    return  # ``drain`` took it
                 data = conn.recv(65536)
             except (BlockingIOError, TimeoutError):
                 return
-            except OSError:
+            except (OSError, ValueError):  # reset, or shut down by ``_drop`` after a failed send
                 data = b""
             if data:
                 self._frames(addr, data)
                 return
-        sel.unregister(conn)
+        with contextlib.suppress(KeyError, ValueError, OSError):
+            sel.unregister(conn)
         buffers.pop(addr, None)
         self._drop(addr, "closed the connection")
+        with contextlib.suppress(OSError):
+            conn.close()  # only the reader thread closes a client socket (its selector still holds it until now)
 
     def drain(self) -> None:
         """Pass on, now, every frame the clients have sent so far (the hub thread, before it confirms to a
@@ -185,9 +192,7 @@ class TcpLink:
         if conn is not None:
             log.info("%s link: client %s:%d %s", self.name, addr[0], addr[1], why)
             with contextlib.suppress(OSError):
-                conn.shutdown(socket.SHUT_RDWR)  # the reader thread sees the end and closes it
-            with contextlib.suppress(OSError):
-                conn.close()
+                conn.shutdown(socket.SHUT_RDWR)  # the reader thread sees the end, unregisters and closes it
 
     # ------------------------------------------------------------------ the hub's side
     def receive(self, max_datagrams: int) -> Iterator[tuple[bytes, Address]]:
