@@ -200,6 +200,19 @@ def test_identity_modes_and_a_guided_flight_over_tcp(copter: tuple[Rig, Client, 
         m = c.recv("LOCAL_POSITION_NED", 1.0)
     assert m.vy > 1.0
     assert c.recv("HEARTBEAT").custom_mode == CopterMode.GUIDED
+    # DO_REPOSITION (QGC's "go to" on ArduPilot): from LOITER only with the change-mode flag, then GUIDED
+    assert c.mode("LOITER").result == M.MAV_RESULT_ACCEPTED
+    s = rig.ap.state()
+    lat_int, lon_int = round((s.lat_deg - 8 / 111_195) * 1e7), round(s.lon_deg * 1e7)
+
+    def reposition(flags: int) -> Any:
+        c.conn.mav.command_int_send(1, 1, 6, 192, 0, 0, -1, flags, 0, math.nan, lat_int, lon_int, 9)
+        return c.recv("COMMAND_ACK", 5.0, lambda m: m.command == 192)
+
+    assert reposition(0).result == M.MAV_RESULT_DENIED
+    assert reposition(1).result == M.MAV_RESULT_ACCEPTED
+    c.recv("HEARTBEAT", 3.0, lambda m: m.custom_mode == CopterMode.GUIDED)
+    c.recv("GLOBAL_POSITION_INT", 40.0, lambda m: abs(m.lat - lat_int) * 0.0111195 < 1.0 and m.relative_alt > 8500)
     assert c.mode("RTL").result == M.MAV_RESULT_ACCEPTED
     c.recv("HEARTBEAT", 3.0, lambda m: m.custom_mode == CopterMode.RTL)
 

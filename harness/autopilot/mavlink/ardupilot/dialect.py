@@ -25,11 +25,13 @@ from typing import TYPE_CHECKING
 from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, CommandResult, FlightMode, Severity, StatusText, VehicleState
+from harness.autopilot.api import AutopilotApi, CommandResult, FlightMode, MavFrame, Severity, StatusText, VehicleState
 from harness.autopilot.mavlink.ardupilot.adapter import CopterApi, copter_text
 from harness.autopilot.mavlink.ardupilot.guided import (
+    RELATIVE_GLOBAL,
     Goto,
     geo_of_local,
+    global_point,
     global_target,
     local_target,
     mission_item_goto,
@@ -232,7 +234,32 @@ class CopterDialect:
             CMD_DO_SET_ROI: self._set_roi,
             CMD_DO_SET_ROI_LOCATION: self._set_roi,
             CMD_DO_SET_ROI_NONE: lambda c: self._roi_none(),
+            _M.MAV_CMD_DO_REPOSITION: self._reposition,
         }
+
+    def _reposition(self, cmd: CommandIn) -> CommandOutcome:
+        """DO_REPOSITION (COMMAND_INT) as ArduCopter takes it: a goto in GUIDED; from another mode only with
+        the change-mode flag (param2 bit 0), which switches to GUIDED first. param1 > 0 sets the speed."""
+        relative = RELATIVE_GLOBAL.get(MavFrame(cmd.frame)) if cmd.frame in set(MavFrame) else None
+        if relative is None:
+            return CommandOutcome(CommandResult.denied("DO_REPOSITION: send it as COMMAND_INT in a global frame"))
+        st = self.api.state()
+        changed = False
+        if self.modes.shown(st.mode) is not CopterMode.GUIDED:
+            if not (math.isfinite(cmd.params[1]) and int(cmd.params[1]) & 1):
+                return CommandOutcome(CommandResult.denied("DO_REPOSITION: not in GUIDED (set the change-mode flag)"))
+            r = self.set_copter_mode(CopterMode.GUIDED)
+            if not r.ok:
+                return CommandOutcome(r)
+            changed = True
+        point = global_point(cmd.params[4] * 1e-7, cmd.params[5] * 1e-7, cmd.params[6], relative, st)
+        if isinstance(point, str):
+            return CommandOutcome(CommandResult.denied(f"DO_REPOSITION: {point}"), mode_or_arming_changed=changed)
+        r = self._goto(Goto(*point))
+        speed = cmd.params[0]
+        if r.ok and math.isfinite(speed) and speed > 0:
+            self.api.change_speed(speed)
+        return CommandOutcome(r, mode_or_arming_changed=changed)
 
     def _do_set_mode(self, cmd: CommandIn) -> CommandOutcome:
         r = self.set_copter_mode(cmd.params[1])

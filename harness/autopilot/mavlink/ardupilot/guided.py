@@ -29,7 +29,7 @@ _ACC_IGNORE = 0b111 << 6
 _YAW_IGNORE = mavlink2.POSITION_TARGET_TYPEMASK_YAW_IGNORE
 _YAW_RATE_IGNORE = mavlink2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 
-_RELATIVE_GLOBAL = {
+RELATIVE_GLOBAL = {
     MavFrame.GLOBAL: False,
     MavFrame.GLOBAL_INT: False,
     MavFrame.GLOBAL_RELATIVE_ALT: True,
@@ -114,7 +114,7 @@ def local_target(m: MAVLinkMessage, state: VehicleState) -> Goto | Velocity | st
 
 def global_target(m: MAVLinkMessage, state: VehicleState) -> Goto | Velocity | str:
     """SET_POSITION_TARGET_GLOBAL_INT as a goto or a velocity target, or why it is refused."""
-    relative = _RELATIVE_GLOBAL.get(m.coordinate_frame)
+    relative = RELATIVE_GLOBAL.get(m.coordinate_frame)
     if relative is None:
         return f"global position target frame {m.coordinate_frame} not supported"
     mask = m.type_mask
@@ -124,7 +124,7 @@ def global_target(m: MAVLinkMessage, state: VehicleState) -> Goto | Velocity | s
     yaw, yaw_rate = _yaw_of(mask, m.yaw, m.yaw_rate)
     point: tuple[float, float, float] | None = None
     if use_pos:
-        p = _global_point(m.lat_int * 1e-7, m.lon_int * 1e-7, m.alt, relative, state)
+        p = global_point(m.lat_int * 1e-7, m.lon_int * 1e-7, m.alt, relative, state)
         if isinstance(p, str):
             return p
         point = p
@@ -142,7 +142,7 @@ def global_target(m: MAVLinkMessage, state: VehicleState) -> Goto | Velocity | s
     return Velocity(OffboardSetpoint(local, (m.vx, m.vy, m.vz), None, yaw, yaw_rate))
 
 
-def _global_point(
+def global_point(
     lat: float, lon: float, alt: float, relative: bool, state: VehicleState
 ) -> tuple[float, float, float] | str:
     if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(alt)) or abs(lat) > 90 or abs(lon) > 180:
@@ -156,14 +156,14 @@ def _global_point(
 
 def mission_item_goto(m: MAVLinkMessage, state: VehicleState) -> Goto | str:
     """MISSION_ITEM(_INT) with current = 2 (guided goto) or 3 (altitude change only)."""
-    relative = _RELATIVE_GLOBAL.get(m.frame)
+    relative = RELATIVE_GLOBAL.get(m.frame)
     if relative is None:
         return f"guided waypoint frame {m.frame} not supported (use a global frame)"
     is_int = m.get_msgId() == mavlink2.MAVLINK_MSG_ID_MISSION_ITEM_INT
     lat, lon = (m.x * 1e-7, m.y * 1e-7) if is_int else (float(m.x), float(m.y))
     if m.current == 3:
         lat, lon = state.lat_deg, state.lon_deg
-    p = _global_point(lat, lon, float(m.z), relative, state)
+    p = global_point(lat, lon, float(m.z), relative, state)
     if isinstance(p, str):
         return p
     return Goto(p[0], p[1], p[2])
