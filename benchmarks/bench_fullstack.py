@@ -5,6 +5,10 @@ rates (physics 1 kHz, control tick 250 Hz, phases 0/1 every 5th tick = 50 Hz, i.
 
     .venv/bin/python benchmarks/bench_fullstack.py                 # 1, 10 and 50 vehicles
     .venv/bin/python benchmarks/bench_fullstack.py 1 10 --repeat 3 # chosen sizes, median of 3 runs
+    .venv/bin/python benchmarks/bench_fullstack.py 1 --firmware ardupilot  # ArduCopter vehicles, DroneKit missions
+
+With ``--firmware ardupilot`` the vehicles present the ArduCopter personality and each mission is
+``missions/hover_dronekit.py`` (the same flight and beacons with DroneKit over SERIAL0, TCP) instead.
 
 Figures per size:
 - RTF: sim time / wall time of the whole run, as ``summary.json`` reports it (start-up included);
@@ -125,7 +129,10 @@ class Result:
     out: Path
 
 
-def run(vehicles: int, hover_s: float) -> Result:
+MISSIONS = {"px4": "hover.py", "ardupilot": "hover_dronekit.py"}
+
+
+def run(vehicles: int, hover_s: float, firmware: str = "px4") -> Result:
     out = Path(tempfile.mkdtemp(prefix=f"bench-fullstack-{vehicles}-"))
     cmd = [
         sys.executable,
@@ -136,8 +143,10 @@ def run(vehicles: int, hover_s: float) -> Result:
         str(vehicles),
         "--network",
         "builtin",
+        "--firmware",
+        firmware,
         "--mission",
-        str(ROOT / "missions" / "hover.py"),
+        str(ROOT / "missions" / MISSIONS[firmware]),
         "--out",
         str(out),
         "--",
@@ -167,9 +176,12 @@ def main() -> int:
     ap.add_argument("sizes", nargs="*", type=int, default=[1, 10, 50])
     ap.add_argument("--repeat", type=int, default=1, help="runs per size; the median RTF is reported")
     ap.add_argument("--hover", type=float, default=30.0, help="seconds of hover in the mission")
+    ap.add_argument("--firmware", choices=sorted(MISSIONS), default="px4", help="the vehicles' personality")
     a = ap.parse_args()
+    client = "MAVSDK (gRPC API)" if a.firmware == "px4" else "DroneKit"
     print(
-        "full stack: JSBSim physics + autopilots + MAVLink + built-in network + 1 MAVSDK (gRPC API) mission per vehicle"
+        f"full stack ({a.firmware}): JSBSim physics + autopilots + MAVLink + built-in network + 1 {client} mission "
+        "per vehicle"
     )
     print(
         f"rates: physics 1000 Hz, tick 250 Hz, phase 0/1 every 5th tick (20 ms); mission: takeoff, hover "
@@ -180,7 +192,7 @@ def main() -> int:
         "CPU s: harness run / missions / mavsdk_server / network"
     )
     for n in a.sizes:
-        runs = sorted((run(n, a.hover) for _ in range(a.repeat)), key=lambda x: x.rtf)
+        runs = sorted((run(n, a.hover, a.firmware) for _ in range(a.repeat)), key=lambda x: x.rtf)
         r = runs[len(runs) // 2]
         spread = "  (runs: " + ", ".join(f"{x.rtf:.2f}" for x in runs) + ")" if a.repeat > 1 else ""
         cpu = r.cpu

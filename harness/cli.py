@@ -11,7 +11,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from harness.errors import HarnessError, ScenarioError
 
@@ -104,6 +104,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             duration_s=a.duration,
             network=a.network,
             progress=None if getattr(a, "no_progress", False) else _progress_printer(),
+            **_firmware_options(a),
         )
     if getattr(a, "set", None):
         raise ScenarioError("--set changes a scenario file: give one (harness run SCENARIO.toml --set PATH=VALUE)")
@@ -128,7 +129,26 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         progress=None if getattr(a, "no_progress", False) else _progress_printer(),
         pause_at_s=a.pause_at,
         pause_wall_s=a.pause_for,
+        **_firmware_options(a),
     )
+
+
+def _firmware_options(a: argparse.Namespace) -> dict[str, Any]:
+    """--firmware (one for all vehicles or comma-separated per vehicle) and, for `harness sitl`, the
+    addresses ArduPilot SITL users expect: SERIAL0 on TCP 5760 + 10 i, UDP outputs 14550 and 14551."""
+    from harness.autopilot.firmware import Firmware
+
+    out: dict[str, Any] = {}
+    if getattr(a, "firmware", None):
+        out["firmware"] = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
+    tcp_base = getattr(a, "tcp_port_base", None)
+    if a.command == "sitl":
+        out["tcp_port_base"] = tcp_base if tcp_base is not None else 5760
+        out["tcp_port_step"] = 10
+        out["gcs_extra_ports"] = (14551,)
+    elif tcp_base is not None:
+        out["tcp_port_base"] = tcp_base
+    return out
 
 
 def _assignments(texts: list[str]) -> list[tuple[str, object]]:
@@ -206,7 +226,10 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540)
     print(f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time; Ctrl-C stops.", flush=True)
     result = Launcher(plan).run()
-    return 0 if result.status in ("ok", "interrupted") else 1
+    if result.status not in ("ok", "interrupted"):
+        print(f"harness sitl: {result.status}: {result.message}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def _sweep_bar() -> Callable[[SweepProgress], None]:
@@ -280,6 +303,19 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--seed", type=int, default=None)
     r.add_argument("--out", default=None, help="run directory (default runs/<timestamp>)")
     r.add_argument("--plot", action="store_true", help="write plots into the run directory at the end")
+    r.add_argument(
+        "--firmware",
+        default=None,
+        metavar="px4|ardupilot",
+        help="the personality of the vehicles (comma-separated: per vehicle); default px4",
+    )
+    r.add_argument(
+        "--tcp-port-base",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="ArduPilot vehicles' SERIAL0 TCP ports (sitl: 5760 + 10 i; run: the run's own port block)",
+    )
     r.add_argument(
         "--pause-at", type=float, default=None, metavar="SIM_S", help="stall test: stop the clock at this sim time"
     )

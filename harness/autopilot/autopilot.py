@@ -434,6 +434,19 @@ class Autopilot:
             self._cache = None
             return CommandResult.accepted()
 
+    def set_yaw(self, yaw_rad: float | None) -> CommandResult:
+        """Turn the nose to ``yaw_rad`` (rad from north) at the auto yaw rate and keep it there while the
+        position target or velocity changes (ArduCopter's CONDITION_YAW and region of interest); None
+        lets the active mode choose again. Until the next mode change."""
+        if yaw_rad is not None and not math.isfinite(yaw_rad):
+            return CommandResult.denied(f"yaw {yaw_rad} is not finite")
+        with self._lock:
+            why = self._flying()
+            if why:
+                return CommandResult.rejected(f"Yaw rejected: {why}")
+            self.core.nav.yaw_target = None if yaw_rad is None else math.remainder(yaw_rad, math.tau)
+            return CommandResult.accepted()
+
     def change_speed(self, speed_m_s: float) -> CommandResult:
         if not math.isfinite(speed_m_s) or not 0.0 < speed_m_s <= self.params["MPC_XY_VEL_MAX"]:
             return CommandResult.denied(f"speed {speed_m_s} m/s outside (0, MPC_XY_VEL_MAX]")

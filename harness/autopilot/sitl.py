@@ -13,6 +13,7 @@ microseconds (the format of QGroundControl and MAVProxy telemetry logs).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import struct
@@ -22,10 +23,12 @@ from pathlib import Path
 from typing import BinaryIO
 
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+from harness.autopilot.firmware import Firmware, firmware_of
 from harness.autopilot.host import run_autopilots
 from harness.autopilot.mavlink.codec import SigningConfig
 from harness.autopilot.mavlink.hub import MavlinkHub
 from harness.autopilot.mavlink.param_store import persist_params
+from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
 from harness.errors import HarnessError, ScenarioError
@@ -79,19 +82,43 @@ def attach_mavlink(
     run_dir: Path | None,
     signing: SigningConfig | None,
     hub: MavlinkHub | None = None,
+    firmware: Firmware = Firmware.PX4,
 ) -> _Attached:
-    """The MAVLink server (and tlog, stored parameters) of ``ap``, served by ``hub`` (or a thread of its own)."""
+    """The MAVLink server (and tlog, stored parameters) of ``ap``, served by ``hub`` (or a thread of its own),
+    presenting ``firmware``'s personality."""
     tlog = None
     if run_dir is not None:
         tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog")
         for refused in persist_params(ap.params, run_dir, ap.vehicle):
             log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
-    server = MavlinkServer(ap, ap.vehicle, ports, signing, tap=tlog.write if tlog else None)
+    server = MavlinkServer(ap, ap.vehicle, ports, signing, tap=tlog.write if tlog else None, firmware=firmware)
     if hub is None:
         server.start()
     else:
         hub.add(server)
     return _Attached(server, tlog)
+
+
+def vehicle_ports(
+    base: PortsConfig,
+    firmware: Firmware,
+    tcp_port_base: int,
+    tcp_port_step: int,
+    extra: tuple[int, ...],
+    tcp_sim_clients: bool = False,
+) -> PortsConfig:
+    """A vehicle's ports. ArduPilot vehicles add SERIAL0 on TCP and the extra UDP outputs ArduPilot users expect,
+    and send nothing unasked to PX4's script port 14540 + i (a PX4 script there must not find an ArduCopter)."""
+    if firmware is not Firmware.ARDUPILOT:
+        return base
+    return dataclasses.replace(
+        base,
+        api_port_base=0,
+        tcp_port_base=tcp_port_base,
+        tcp_port_step=tcp_port_step,
+        gcs_extra_ports=extra,
+        tcp_sim_clients=tcp_sim_clients,
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -105,24 +132,47 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--params", default="{}", help='JSON: {"<vehicle>": {"PARAM": value}}')
     ap.add_argument("--signing-key", default=None, help="MAVLink 2 signing key (64 hex digits)")
     ap.add_argument("--ground-truth", action="store_true")
+    ap.add_argument("--firmware", default="px4", help="px4 or ardupilot: one for all, or comma-separated per vehicle")
+    ap.add_argument("--tcp-port-base", type=int, default=0, help="ArduPilot vehicles listen on TCP base + step*i")
+    ap.add_argument("--tcp-port-step", type=int, default=1)
+    ap.add_argument("--gcs-extra-ports", default="", help="comma-separated extra UDP outputs of ArduPilot vehicles")
+    ap.add_argument("--tcp-sim-clients", action="store_true", help="TCP clients are missions on sim time (a run)")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         vehicles = [int(v) for v in a.vehicles.split(",") if v.strip()]
         overrides = {int(k): v for k, v in json.loads(a.params).items()}
         signing = SigningConfig(bytes.fromhex(a.signing_key)) if a.signing_key else None
+        extra = tuple(int(p) for p in a.gcs_extra_ports.split(",") if p.strip())
     except (ValueError, json.JSONDecodeError) as exc:
         raise ScenarioError(f"autopilot process: bad argument: {exc}") from None
-    ports = PortsConfig(api_port_base=a.api_port_base, api_local_port_base=a.api_local_port_base, gcs_port=a.gcs_port)
+    firmwares = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
+    base = PortsConfig(api_port_base=a.api_port_base, api_local_port_base=a.api_local_port_base, gcs_port=a.gcs_port)
     hub = MavlinkHub().start()
     try:
         run_autopilots(
             a.address,
             vehicles,
             config_for=lambda v: AutopilotConfig(
-                vehicle=v, use_ground_truth=a.ground_truth, params=overrides.get(v, {})
+                vehicle=v,
+                use_ground_truth=a.ground_truth,
+                params={**core_param_defaults(firmware_of(firmwares, v)), **overrides.get(v, {})},
             ),
-            attach=lambda autopilot: attach_mavlink(autopilot, ports, a.run_dir, signing, hub),
+            attach=lambda autopilot: attach_mavlink(
+                autopilot,
+                vehicle_ports(
+                    base,
+                    firmware_of(firmwares, autopilot.vehicle),
+                    a.tcp_port_base,
+                    a.tcp_port_step,
+                    extra,
+                    a.tcp_sim_clients,
+                ),
+                a.run_dir,
+                signing,
+                hub,
+                firmware_of(firmwares, autopilot.vehicle),
+            ),
         )
     except HarnessError as exc:
         log.error("%s", exc)

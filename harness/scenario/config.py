@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from harness.autopilot.firmware import Firmware
 from harness.errors import ScenarioError
 from harness.scenario.launcher import LaunchPlan, MissionPlan
 
@@ -44,8 +45,8 @@ _SECTIONS: dict[str, set[str]] = {
     "channel": {"stall_timeout_s"},
     "mavlink": {"api_port_base", "gcs_port"},
 }
-_VEHICLES_TABLE = {"count", "mission", "args", "spawn", "spacing_m", "params"}
-_VEHICLE = {"mission", "args", "spawn_ned_m", "params"}
+_VEHICLES_TABLE = {"count", "mission", "args", "spawn", "spacing_m", "params", "firmware"}
+_VEHICLE = {"mission", "args", "spawn_ned_m", "params", "firmware"}
 _SPAWNS = {"grid", "line", "circle"}
 
 
@@ -213,6 +214,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         raise ctx.fail("network.model", f"must be 'builtin', 'ns3' or 'none', got {model!r}")
 
     missions, spawns, params = _vehicles(ctx, raw.get("vehicles"))
+    firmware = _firmwares(ctx, raw.get("vehicles"), len(missions))
     plan = LaunchPlan(
         vehicles=len(missions),
         out=Path(str(raw.get("out", "runs/" + path.stem))),
@@ -241,6 +243,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         sensor_noise=_boolean(ctx, sensors.get("noise", True), "sensors.noise"),
         spawn_ned_m=spawns,
         params=tuple(params),
+        firmware=firmware,
         api_port_base=ctx.integer(mav.get("api_port_base", 14580), "mavlink.api_port_base", minimum=1),
         gcs_port=ctx.integer(mav.get("gcs_port", 14550), "mavlink.gcs_port", minimum=0),
     )
@@ -318,6 +321,19 @@ def _vehicles(
             per_vehicle.append(ctx.params(table.get("params", {}), f"{where}.params"))
         return missions, tuple(spawns), per_vehicle
     raise ctx.fail("vehicles", f"expected a count, a table or a list of tables, got {type(raw).__name__}")
+
+
+def _firmwares(ctx: _Ctx, raw: Any, count: int) -> tuple[Firmware, ...]:
+    """``firmware = "px4" | "ardupilot"`` in the [vehicles] table (all) or in each [[vehicles]] entry."""
+    if isinstance(raw, dict):
+        return (Firmware.parse(raw.get("firmware", "px4"), f"{ctx.path}: vehicles.firmware"),) * count
+    if isinstance(raw, list):
+        return tuple(
+            Firmware.parse(t.get("firmware", "px4"), f"{ctx.path}: vehicles[{i}].firmware")
+            for i, t in enumerate(raw)
+            if isinstance(t, dict)
+        )
+    return ()
 
 
 def _replace(plan: LaunchPlan, fields: dict[str, Any]) -> LaunchPlan:

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from harness.autopilot.firmware import Firmware, firmware_of
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.world import WorldRecorder
@@ -85,6 +86,17 @@ class LaunchPlan:
     """"in-process": autopilots and MAVLink servers live in the physics process (no socket hop per tick);
     "process": one SITL-like autopilot process for all vehicles, connected to the channel."""
     progress: Callable[[str], None] | None = None
+    firmware: tuple[Firmware, ...] = ()
+    """Per vehicle (or one entry for all; empty: PX4): the personality its MAVLink side presents."""
+    tcp_port_base: int | None = None
+    """ArduPilot vehicles' SERIAL0 (TCP) ports: ``tcp_port_base + tcp_port_step * i``; None: the run's own
+    block (vehicle i listens on TCP ``api_port_base + i``, the number of its UDP API port)."""
+    tcp_port_step: int = 1
+    gcs_extra_ports: tuple[int, ...] = ()
+    """More UDP outputs of ArduPilot vehicles (``harness sitl``: 14551, beside the GCS port 14550)."""
+
+    def firmware_of(self, vehicle: int) -> Firmware:
+        return firmware_of(self.firmware, vehicle)
 
 
 @dataclass
@@ -221,6 +233,11 @@ class Launcher:
         self._pause_timer: threading.Timer | None = None
         self._aps: dict[int, Any] = {}
         """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
+        self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port
+        self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
+        self._tcp_sim_clients = plan.api_remote_base == 0
+        """A batch run (nothing sent unasked to hand-run tools): the ArduPilot vehicles' TCP clients are its
+        missions, on sim time; `harness sitl` serves hand-run tools on the wall clock there."""
 
     def run(self) -> RunResult:
         from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
@@ -258,6 +275,7 @@ class Launcher:
         t_ns = 0
         ports = allocate(n, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
+        self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         local: list[Any] = []
         with ports, Children(plan.out) as sup:  # the block stays this run's until every process has stopped
             try:
@@ -266,6 +284,14 @@ class Launcher:
                         f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
                         f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
                     )
+                    ardupilot = [i for i in range(n) if plan.firmware_of(i) is Firmware.ARDUPILOT]
+                    if ardupilot:
+                        step = plan.tcp_port_step
+                        plan.progress(
+                            f"MAVLink: ArduPilot vehicles {ardupilot} listen on tcp port {self.tcp_port_base}"
+                            + (f"+{step}*i" if step != 1 else "+i")
+                            + (f", and also send to udp {list(plan.gcs_extra_ports)}" if plan.gcs_extra_ports else "")
+                        )
                 if plan.autopilots == "in-process":
                     local = self._local_autopilots(channel)
                 self._start_children(sup, channel.address)
@@ -334,12 +360,21 @@ class Launcher:
         """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process."""
         from harness.autopilot.autopilot import Autopilot, AutopilotConfig
         from harness.autopilot.mavlink.hub import MavlinkHub
+        from harness.autopilot.mavlink.personality import core_param_defaults
         from harness.autopilot.mavlink.transport import PortsConfig
-        from harness.autopilot.sitl import attach_mavlink
+        from harness.autopilot.sitl import attach_mavlink, vehicle_ports
 
         plan = self.plan
         aps = {
-            i: Autopilot(AutopilotConfig(vehicle=i, params=plan.params[i] if i < len(plan.params) else {}))
+            i: Autopilot(
+                AutopilotConfig(
+                    vehicle=i,
+                    params={
+                        **core_param_defaults(plan.firmware_of(i)),
+                        **(plan.params[i] if i < len(plan.params) else {}),
+                    },
+                )
+            )
             for i in range(plan.vehicles)
         }
         # each vehicle binds its API port; missions connect out to it, and nothing goes to anyone else's port
@@ -347,7 +382,21 @@ class Launcher:
             api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
         )
         hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
-        handles: list[Any] = [attach_mavlink(ap, ports, plan.out, None, hub) for ap in aps.values()]
+        handles: list[Any] = []
+        try:
+            for i, ap in aps.items():
+                fw = plan.firmware_of(i)
+                vp = vehicle_ports(
+                    ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports, self._tcp_sim_clients
+                )
+                handles.append(attach_mavlink(ap, vp, plan.out, None, hub, fw))
+        except Exception as exc:
+            for h in handles:
+                h.close()
+            hub.stop()
+            if isinstance(exc, ScenarioError):  # a port taken by another simulator: one line, not a traceback
+                raise SimulationError(str(exc)) from None
+            raise
         handles.append(hub)
 
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
@@ -381,6 +430,15 @@ class Launcher:
                     str(plan.out),
                     "--params",
                     json.dumps(overrides),
+                    "--firmware",
+                    ",".join(plan.firmware_of(i).value for i in range(plan.vehicles)),
+                    "--tcp-port-base",
+                    str(self.tcp_port_base),
+                    "--tcp-port-step",
+                    str(plan.tcp_port_step),
+                    "--gcs-extra-ports",
+                    ",".join(str(p) for p in plan.gcs_extra_ports),
+                    *(["--tcp-sim-clients"] if self._tcp_sim_clients else []),
                 ],
                 env=env,
             )
@@ -408,6 +466,10 @@ class Launcher:
             menv = dict(
                 env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(i + 1), HARNESS_MAVLINK_PORT=str(self.api_port_base + i)
             )
+            fw = plan.firmware_of(i)
+            menv["HARNESS_FIRMWARE"] = fw.value
+            if fw is Firmware.ARDUPILOT:  # SERIAL0: a script's tcp:127.0.0.1:5760 is sent here
+                menv["HARNESS_MAVLINK_TCP_PORT"] = str(self.tcp_port_base + plan.tcp_port_step * i)
             sup.start(
                 f"mission-{i}",
                 [

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from harness.pytest_plugin import RunRecord
@@ -22,10 +22,13 @@ def flown(harness_run: Fly, script: str, *args: str) -> RunRecord:
     return run
 
 
-def start_sitl(vehicles: int, out: Path, stdout: int | None = None) -> tuple[subprocess.Popen[str], int]:
-    """`harness sitl` and the GCS port it reports (read from its stderr, which stays a pipe)."""
+def start_sitl(
+    vehicles: int, out: Path, stdout: int | None = None, extra: Sequence[str] = ()
+) -> tuple[subprocess.Popen[str], int]:
+    """`harness sitl` (``extra``: more options) and the GCS port it reports (read from its stderr, which stays
+    a pipe)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "harness.cli", "sitl", "--vehicles", str(vehicles), "--out", str(out)],
+        [sys.executable, "-m", "harness.cli", "sitl", "--vehicles", str(vehicles), "--out", str(out), *extra],
         stdout=stdout if stdout is not None else subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

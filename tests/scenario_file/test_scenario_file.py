@@ -85,3 +85,17 @@ def test_missing_file_and_bad_toml(tmp_path: Path) -> None:
     bad.write_text("vehicles = [\n")
     with pytest.raises(ScenarioError, match="not valid TOML"):
         load_scenario(bad)
+
+
+def test_firmware_per_vehicle_for_all_and_refused_names(tmp_path: Path) -> None:
+    from harness.autopilot.firmware import Firmware
+
+    mixed = write(tmp_path, '[[vehicles]]\nfirmware = "ardupilot"\n[[vehicles]]\n[[vehicles]]\nfirmware = "PX4"\n')
+    plan = load_scenario(mixed)
+    assert [plan.firmware_of(i) for i in range(3)] == [Firmware.ARDUPILOT, Firmware.PX4, Firmware.PX4]
+    every = write(tmp_path, '[vehicles]\ncount = 2\nfirmware = "ardupilot"\n')
+    assert {load_scenario(every).firmware_of(i) for i in range(2)} == {Firmware.ARDUPILOT}
+    assert load_scenario(every, firmware=(Firmware.PX4,)).firmware_of(1) is Firmware.PX4  # --firmware wins
+    bad = write(tmp_path, '[[vehicles]]\n[[vehicles]]\nfirmware = "apm"\n')
+    with pytest.raises(ScenarioError, match=r"s\.toml: vehicles\[1\]\.firmware: unknown firmware 'apm'"):
+        load_scenario(bad)

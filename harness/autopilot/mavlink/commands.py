@@ -11,7 +11,7 @@ again within a second) is answered with the first ACK and not executed twice.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -112,6 +112,10 @@ class CommandService:
             CMD_REQUEST_AUTOPILOT_CAPABILITIES: lambda c: self._send_message(_AUTOPILOT_VERSION_ID),
             CMD_GET_HOME_POSITION: lambda c: self._send_message(mavlink2.MAVLINK_MSG_ID_HOME_POSITION),
         }
+
+    def override(self, handlers: Mapping[int, Callable[[CommandIn], CommandOutcome]]) -> None:
+        """Commands a firmware personality handles its own way (same ACK, retransmission and refusal rules)."""
+        self._handlers.update(handlers)
 
     def handle(self, cmd: CommandIn, sender: tuple[object, ...], now_ns: int) -> CommandOutcome:
         """Run one command from ``sender`` (origin address and ids) at wall time ``now_ns``."""

@@ -106,6 +106,31 @@ def item_to_message(
     )
 
 
+def item_to_float_message(
+    mav: mavlink2.MAVLink, it: MissionItem, seq: int, target: Origin, kind: int, current: bool
+) -> MAVLinkMessage:
+    """The float MISSION_ITEM (degrees, metres) that DroneKit and older ground stations read."""
+    x = it.lat_deg if it.is_global else float(it.x)
+    y = it.lon_deg if it.is_global else float(it.y)
+    return mav.mission_item_encode(
+        target.sysid,
+        target.compid,
+        seq,
+        it.frame,
+        it.command,
+        1 if current else 0,
+        1 if it.autocontinue else 0,
+        it.param1,
+        it.param2,
+        it.param3,
+        it.param4,
+        x,
+        y,
+        it.z,
+        kind,
+    )
+
+
 @dataclass(slots=True)
 class _Upload:
     origin: Origin
@@ -120,9 +145,17 @@ class MissionService:
     """Mission transfers for one autopilot. Server thread only."""
 
     def __init__(
-        self, api: AutopilotApi, mav: mavlink2.MAVLink, retry_ns: int = 1_500_000_000, max_retries: int = 5
+        self,
+        api: AutopilotApi,
+        mav: mavlink2.MAVLink,
+        retry_ns: int = 1_500_000_000,
+        max_retries: int = 5,
+        float_form: bool = False,
     ) -> None:
         self.api = api
+        self.float_form = float_form
+        """ArduPilot: ask for items with MISSION_REQUEST (DroneKit answers nothing else) and answer a
+        MISSION_REQUEST with a float MISSION_ITEM; the _INT forms keep working."""
         self.mav = mav
         self.retry_ns = retry_ns
         self.max_retries = max_retries
@@ -143,7 +176,8 @@ class MissionService:
     def _request(self, up: _Upload, now_ns: int) -> Out:
         up.last_ns = now_ns
         seq = len(up.items)
-        return Out(self.mav.mission_request_int_encode(up.origin.sysid, up.origin.compid, seq, up.kind), up.origin)
+        encode = self.mav.mission_request_encode if self.float_form else self.mav.mission_request_int_encode
+        return Out(encode(up.origin.sysid, up.origin.compid, seq, up.kind), up.origin)
 
     def handle(self, m: MAVLinkMessage, origin: Origin, now_ns: int) -> list[Out]:
         mid = m.get_msgId()
@@ -232,6 +266,8 @@ class MissionService:
         if not 0 <= m.seq < len(items):
             return [self._ack(origin, mavlink2.MAV_MISSION_INVALID_SEQUENCE, kind)]
         current = kind == 0 and m.seq == self.api.state().mission.current_seq
+        if self.float_form and m.get_msgId() == mavlink2.MAVLINK_MSG_ID_MISSION_REQUEST:
+            return [Out(item_to_float_message(self.mav, items[m.seq], m.seq, origin, kind, current), origin)]
         return [Out(item_to_message(self.mav, items[m.seq], m.seq, origin, kind, current), origin)]
 
     def _clear(self, m: MAVLinkMessage, origin: Origin) -> list[Out]:

@@ -60,8 +60,10 @@ class ParamTable:
     the standard PX4 definitions.
     """
 
-    def __init__(self, api: AutopilotApi) -> None:
+    def __init__(self, api: AutopilotApi, bytewise: bool = True) -> None:
         self.api = api
+        self.bytewise = bytewise
+        """INT32 values bytewise in the float (PX4); False: the value cast to float (ArduPilot's C cast)."""
         registry = getattr(api, "params", None)
         self.registry: Params | None = registry if isinstance(registry, Params) else None
         defs: Iterable[ParamDef] = self.registry.defs if self.registry is not None else PARAM_DEFS
@@ -82,7 +84,8 @@ class ParamTable:
         d = self.defs[index]
         ptype = self.mav_type(index)
         value = self.api.get_param(d.name)
-        return mav.param_value_encode(d.name.encode(), encode_value(value, ptype), ptype, len(self.defs), index)
+        raw = encode_value(value, ptype) if self.bytewise else float(value)
+        return mav.param_value_encode(d.name.encode(), raw, ptype, len(self.defs), index)
 
 
 @dataclass(slots=True)
@@ -94,8 +97,8 @@ class _ListJob:
 class ParamService:
     """Answers the parameter protocol for one autopilot. Server thread only."""
 
-    def __init__(self, api: AutopilotApi, mav: mavlink2.MAVLink, per_tick: int = 40) -> None:
-        self.table = ParamTable(api)
+    def __init__(self, api: AutopilotApi, mav: mavlink2.MAVLink, per_tick: int = 40, bytewise: bool = True) -> None:
+        self.table = ParamTable(api, bytewise)
         self.api = api
         self.mav = mav
         self.per_tick = per_tick
@@ -134,7 +137,7 @@ class ParamService:
         index = self.table.index(name)
         if index < 0:
             return [], CommandResult.denied(f"PARAM_SET: unknown parameter {name!r}")
-        value = decode_value(m.param_value, m.param_type)
+        value = decode_value(m.param_value, m.param_type) if self.table.bytewise else float(m.param_value)
         result = self.api.set_param(name, value)
         # Echo (new or unchanged value) to everyone, like PX4: the sender sees its confirmation.
         with self._changed_lock:

@@ -32,15 +32,16 @@ from harness.autopilot.mavlink import ftp
 from harness.autopilot.mavlink.codec import Codec, FrameStatus, SigningConfig
 from harness.autopilot.mavlink.commands import CommandIn, CommandService
 from harness.autopilot.mavlink.datalink import DataLinkMonitor
-from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule, heartbeat_message
+from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule
 from harness.autopilot.mavlink.hub import MavlinkHub
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, statustext
 from harness.autopilot.mavlink.mission import MissionService, ProgressTracker
 from harness.autopilot.mavlink.offboard import handle_setpoint
 from harness.autopilot.mavlink.parameters import ParamService
+from harness.autopilot.mavlink.personality import Firmware, make_dialect
+from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
-from harness.autopilot.mavlink.transport import PortsConfig, UdpLink
-from harness.autopilot.mavlink.version import autopilot_version
+from harness.autopilot.mavlink.transport import Link, PortsConfig, UdpLink
 from harness.simclock.clock import real_monotonic_ns, real_time_ns
 from harness.simclock.endpoints import SETTLE_PREFIX
 
@@ -101,7 +102,8 @@ class MavlinkServer:
 
     ``tap`` is called (on the server thread) with every frame sent and every valid frame received: the
     tlog writer. ``wall_ns`` / ``unix_ns`` are the wall clocks (monotonic, and Unix time for signing).
-    ``home_on_first_fix``: see ``_set_home_at_first_fix``.
+    ``home_on_first_fix``: see ``_set_home_at_first_fix``. ``firmware``: the personality it presents
+    (``personality.py``); the services see the autopilot through its dialect (``self.api``).
     """
 
     def __init__(
@@ -115,7 +117,11 @@ class MavlinkServer:
         unix_ns: Callable[[], int] = real_time_ns,
         tap: Callable[[bytes], None] | None = None,
         home_on_first_fix: bool = True,
+        firmware: Firmware = Firmware.PX4,
     ) -> None:
+        self.firmware = firmware
+        self.dialect = make_dialect(firmware, autopilot, vehicle + 1)
+        autopilot = self.dialect.api
         self.api = autopilot
         self.vehicle = vehicle
         self.sysid = vehicle + 1
@@ -130,14 +136,25 @@ class MavlinkServer:
         """True while the autopilot's stepping thread services this server (the bell), at sim time."""
         self.codec = Codec(self.sysid, self.compid, signing, unix_ns)
         mav = self.codec.mav
-        self.links = [UdpLink(cfg) for cfg in self.ports.links(vehicle)]
-        self.streams = StreamScheduler()
+        self.links: list[Link] = [UdpLink(cfg) for cfg in self.ports.links(vehicle)]
+        tcp = self.ports.tcp_local(vehicle)
+        if tcp is not None:
+            try:
+                self.links.append(TcpLink("tcp", tcp, sim_clients=self.ports.tcp_sim_clients))
+            except Exception:
+                for lk in self.links:
+                    lk.close()
+                raise
+        dialect = self.dialect
+        self.builders = {**BUILDERS, **dialect.builders}
+        self.streams = StreamScheduler(defaults=dict(dialect.stream_defaults), builders=self.builders)
         self.heartbeat = HeartbeatSchedule()
-        self.params = ParamService(autopilot, mav)
-        self.missions = MissionService(autopilot, mav)
+        self.params = ParamService(autopilot, mav, bytewise=dialect.param_bytewise)
+        self.missions = MissionService(autopilot, mav, float_form=dialect.mission_float_form)
         self.commands = CommandService(
             autopilot, self._request_message, self.streams.set_interval, getattr(autopilot, "inject_failure", None)
         )
+        self.commands.override(dialect.command_handlers())
         self._progress = ProgressTracker()
         self.datalink = DataLinkMonitor(autopilot)
         self._counters = MavlinkCounters()
@@ -155,6 +172,7 @@ class MavlinkServer:
         self._ring_at: Callable[[int], None] | None = None
         self.next_wake_ns = 0
         """Wall time (monotonic ns) at which the hub must call :meth:`service` at the latest."""
+        dialect.bind(self, mav, self.sysid)
 
     # ------------------------------------------------------------------ public
     def start(self) -> MavlinkServer:
@@ -208,6 +226,17 @@ class MavlinkServer:
             if lk.name == link:
                 return lk.local_address
         raise KeyError(f"no MAVLink link named {link!r} (have {[lk.name for lk in self.links]})")
+
+    # ------------------------------------------------------------------ for the dialect (server thread)
+    @property
+    def mav(self) -> mavlink2.MAVLink:
+        return self.codec.mav
+
+    def say(self, severity: Severity, text: str, now: int) -> None:
+        self._say(severity, text, now)
+
+    def link_name(self, link: int) -> str:
+        return self.links[link].name
 
     def counters(self) -> MavlinkCounters:
         with self._counter_lock:
@@ -281,6 +310,7 @@ class MavlinkServer:
         if data.startswith(SETTLE_PREFIX):
             # a mission's runtime asks whether all it sent before is handled: yes (one socket, in order);
             # what that caused (a forced heartbeat, a STATUSTEXT, a due message) goes out before the answer
+            self._drain_tcp(now)  # its MAVLink may have come over TCP (SERIAL0) instead
             self._service(now)
             while self.params.busy:  # a parameter list it asked for goes out now, not paced on the wall clock
                 self._send_all(self.params.tick(), now)
@@ -299,18 +329,27 @@ class MavlinkServer:
             elif d.message is not None:
                 self._count("frames_rx")
                 m = d.message
-                if self.links[link].heard(addr, now) and link == 0:
+                if self.links[link].heard(addr, now) and (link == 0 or self.links[link].name == "tcp"):
                     # a new client on the API link (MAVSDK connecting out) hears from us at once, not at the
                     # next heartbeat: it discovers the vehicle while a starting mission holds the sim clock
-                    self._send(Out(heartbeat_message(self.codec.mav, self.api.state()), Origin(link, addr, 0, 0)), now)
+                    hb = self.dialect.heartbeat(self.codec.mav, self.api.state())
+                    self._send(Out(hb, Origin(link, addr, 0, 0)), now)
                 if self._tap is not None:
                     self._tap(bytes(m.get_msgbuf()))
                 origin = Origin(link, addr, m.get_srcSystem(), m.get_srcComponent())
                 try:
-                    self._dispatch(m, origin, now)
+                    self._dispatch_dialect(m, origin, now)
                 except Exception as e:
                     self._count("handler_errors")
                     self._log_once(e, f"handling {m.get_type()}")
+
+    def _drain_tcp(self, now: int) -> None:
+        """Handle every frame already sent to the TCP links (the settle datagram comes over UDP)."""
+        for i, lk in enumerate(self.links):
+            if isinstance(lk, TcpLink):
+                lk.drain()
+                for data, addr in lk.receive(512):
+                    self._on_datagram(i, data, addr, now)
 
     def _for_us(self, m: MAVLinkMessage) -> bool:
         if getattr(m, "target_network", 0) != 0:
@@ -318,6 +357,15 @@ class MavlinkServer:
         ts = getattr(m, "target_system", 0)
         tc = getattr(m, "target_component", 0)
         return ts in (0, self.sysid) and tc in (0, self.compid)
+
+    def _dispatch_dialect(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
+        """The firmware's own handling first (messages addressed to us), then the generic services."""
+        if m.get_msgId() != _M.MAVLINK_MSG_ID_HEARTBEAT and self._for_us(m):
+            outs = self.dialect.handle(m, origin, now)
+            if outs is not None:
+                self._send_all(outs, now)
+                return
+        self._dispatch(m, origin, now)
 
     def _dispatch(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
         mid = m.get_msgId()
@@ -381,8 +429,8 @@ class MavlinkServer:
     def _request_message(self, msg_id: int) -> MAVLinkMessage | str | None:
         mav = self.codec.mav
         if msg_id == _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            return autopilot_version(mav, self.sysid)
-        builder = BUILDERS.get(msg_id)
+            return self.dialect.autopilot_version(mav, self.sysid)
+        builder = self.builders.get(msg_id)
         if builder is None:
             return None
         msg = builder(mav, self.api.state(), self._boot_ms())
@@ -407,10 +455,10 @@ class MavlinkServer:
         outs: list[Out] = []
         sim_peers = any(link.has_sim_peers for link in self.links)
         if self.heartbeat.due(now, state, sim_peers):
-            outs.append(Out(heartbeat_message(mav, state), wall_clock=self.heartbeat.by_wall))
+            outs.append(Out(self.dialect.heartbeat(mav, state), wall_clock=self.heartbeat.by_wall))
         t_ms = self._boot_ms()
         for msg_id, by_wall in self.streams.due_by_clock(now, self._t_ns, sim_peers):
-            msg = BUILDERS[msg_id](mav, state, t_ms)
+            msg = self.builders[msg_id](mav, state, t_ms)
             if msg is not None:
                 outs.append(Out(msg, wall_clock=by_wall))
         if state.home is not None and state.home != self._home:
@@ -424,6 +472,7 @@ class MavlinkServer:
             outs.append(Out(mission_current(mav, state, t_ms)))
         for reached in self.api.pop_mission_reached():
             outs.append(Out(mav.mission_item_reached_encode(reached.seq & 0xFFFF)))
+        outs += self.dialect.tick(state, now)
         self._send_all(outs, now)
         lost = self.datalink.check(state, now)
         if lost:

@@ -10,7 +10,7 @@ intervals of every message that has a builder here.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -282,6 +282,8 @@ class StreamScheduler:
     """Which stream messages are due now, on the faster of the wall and the sim clock."""
 
     defaults: dict[int, int] = field(default_factory=lambda: dict(DEFAULT_INTERVALS_NS))
+    builders: Mapping[int, Builder] = field(default_factory=lambda: BUILDERS)
+    """Messages that can be streamed (a personality adds its own to ``BUILDERS``)."""
     _streams: dict[int, _Stream] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -290,7 +292,7 @@ class StreamScheduler:
 
     def set_interval(self, msg_id: int, interval_us: float) -> bool:
         """Command 511: -1 disables, 0 restores the default, > 0 sets the interval. False if unknown."""
-        if msg_id not in BUILDERS or not math.isfinite(interval_us):
+        if msg_id not in self.builders or not math.isfinite(interval_us):
             return False
         if interval_us < 0:
             self._streams.pop(msg_id, None)

@@ -14,6 +14,7 @@ import logging
 import socket
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Protocol
 
 from harness.errors import ScenarioError
 from harness.simclock.endpoints import LISTEN_HELLO
@@ -55,6 +56,22 @@ class PortsConfig:
     bind_host: str = "127.0.0.1"
     api_local_port_base: int = 0
     gcs_local_port_base: int = 0
+    gcs_extra_ports: tuple[int, ...] = ()
+    """More UDP outputs like the GCS one (ArduPilot SITL users expect 14550 and 14551)."""
+    tcp_port_base: int = 0
+    """ArduPilot's SERIAL0: vehicle ``i`` listens on TCP ``tcp_port_base + tcp_port_step * i`` (0: no TCP)."""
+    tcp_port_step: int = 1
+    tcp_sim_clients: bool = False
+    """The TCP clients are missions on sim time (``harness run``); ground stations connect over UDP."""
+
+    def tcp_local(self, vehicle: int) -> Address | None:
+        """The TCP address vehicle ``vehicle`` listens on, or None without a TCP link."""
+        if not self.tcp_port_base:
+            return None
+        port = self.tcp_port_base + self.tcp_port_step * vehicle
+        if not 0 < port <= 65535:
+            raise ScenarioError(f"MAVLink TCP port {port} of vehicle {vehicle} is not a TCP port (1..65535)")
+        return (self.bind_host, port)
 
     def links(self, vehicle: int) -> tuple[LinkConfig, ...]:
         if vehicle < 0:
@@ -75,7 +92,30 @@ class PortsConfig:
         links = [LinkConfig("api", local(self.api_local_port_base), api_remote)]
         if self.gcs_port:
             links.append(LinkConfig("gcs", local(self.gcs_local_port_base), (self.remote_host, self.gcs_port)))
+        for i, port in enumerate(self.gcs_extra_ports):
+            if not 0 < port <= 65535:
+                raise ScenarioError(f"MAVLink output port {port} is not a UDP port (1..65535)")
+            links.append(LinkConfig(f"gcs{i + 2}", (self.bind_host, 0), (self.remote_host, port)))
         return tuple(links)
+
+
+class Link(Protocol):
+    """What the server and the hub use of a link (UDP here, TCP in ``tcp.py``)."""
+
+    name: str
+    send_errors: int
+
+    @property
+    def sock(self) -> socket.socket: ...
+    @property
+    def local_address(self) -> Address: ...
+    def receive(self, max_datagrams: int) -> Iterator[tuple[bytes, Address]]: ...
+    def heard(self, peer: Address, now_ns: int) -> bool: ...
+    def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]: ...
+    @property
+    def has_sim_peers(self) -> bool: ...
+    def send(self, data: bytes, addr: Address) -> bool: ...
+    def close(self) -> None: ...
 
 
 class UdpLink:

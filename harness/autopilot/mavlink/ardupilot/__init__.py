@@ -1,0 +1,1 @@
+"""The ArduCopter personality of the autopilot's MAVLink side (see ``dialect.py``)."""

@@ -1,0 +1,190 @@
+"""ArduCopter parameter names over the flight core's (PX4-named) parameters.
+
+Each ArduCopter parameter is either *mapped* to a core parameter with ArduPilot's unit (``RTL_ALT`` in cm is
+``RTL_RETURN_ALT`` in m x 100: setting one sets the other, and a core change shows up under the ArduPilot
+name) or *own* to the personality (stream rates ``SRx_*``, ``SYSID_THISMAV``, ``FRAME_CLASS``, ...). The
+fence parameters are combined: ``FENCE_ENABLE`` = 0 turns the core's fence limits off, 1 applies
+``FENCE_RADIUS`` / ``FENCE_ALT_MAX`` (when ``FENCE_TYPE`` enables them) and ``FENCE_ACTION``.
+
+:class:`CopterParams` is a :class:`~harness.autopilot.params.Params` registry with the ArduCopter names
+(the parameter protocol serves it as is) kept in step with the core registry both ways.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from harness.autopilot.api import CommandResult
+from harness.autopilot.params import ParamDef, Params, ParamType
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class Mapped:
+    """ArduPilot ``name`` = core ``core`` x ``scale``."""
+
+    name: str
+    core: str
+    scale: float
+    type: ParamType = ParamType.FLOAT
+    unit: str = ""
+
+
+MAPPED: tuple[Mapped, ...] = (
+    Mapped("WPNAV_SPEED", "MPC_XY_CRUISE", 100.0, unit="cm/s"),
+    Mapped("WPNAV_SPEED_UP", "MPC_Z_VEL_MAX_UP", 100.0, unit="cm/s"),
+    Mapped("WPNAV_SPEED_DN", "MPC_Z_VEL_MAX_DN", 100.0, unit="cm/s"),
+    Mapped("WPNAV_ACCEL", "MPC_ACC_HOR", 100.0, unit="cm/s/s"),
+    Mapped("WPNAV_RADIUS", "NAV_ACC_RAD", 100.0, unit="cm"),
+    Mapped("LAND_SPEED", "MPC_LAND_SPEED", 100.0, unit="cm/s"),
+    Mapped("RTL_ALT", "RTL_RETURN_ALT", 100.0, unit="cm"),
+    Mapped("RTL_LOIT_TIME", "RTL_LAND_DELAY", 1000.0, unit="ms"),
+    Mapped("DISARM_DELAY", "COM_DISARM_PRFLT", 1.0, ParamType.INT32, "s"),
+    Mapped("GUID_TIMEOUT", "COM_OF_LOSS_T", 1.0, unit="s"),
+    Mapped("ANGLE_MAX", "MPC_TILTMAX_AIR", 100.0, unit="cdeg"),
+    Mapped("BATT_CAPACITY", "BAT_CAPACITY", 1.0, ParamType.INT32, "mAh"),
+    Mapped("MOT_THST_HOVER", "MPC_THR_HOVER", 1.0),
+    Mapped("THR_MIN", "MPC_THR_MIN", 1000.0),  # ArduCopter 3.x name (DroneKit's vehicle_state.py reads it)
+    Mapped("PSC_POSXY_P", "MPC_XY_P", 1.0),
+    Mapped("PSC_POSZ_P", "MPC_Z_P", 1.0),
+    Mapped("ATC_ANG_RLL_P", "MC_ROLL_P", 1.0),
+    Mapped("ATC_ANG_PIT_P", "MC_PITCH_P", 1.0),
+    Mapped("ATC_ANG_YAW_P", "MC_YAW_P", 1.0),
+    Mapped("ATC_RAT_RLL_P", "MC_ROLLRATE_P", 1.0),
+    Mapped("ATC_RAT_PIT_P", "MC_PITCHRATE_P", 1.0),
+    Mapped("ATC_RAT_YAW_P", "MC_YAWRATE_P", 1.0),
+)
+
+CORE_DEFAULTS: dict[str, float] = {
+    "RTL_RETURN_ALT": 15.0,  # RTL_ALT 1500 cm
+    "RTL_LAND_DELAY": 5.0,  # RTL_LOIT_TIME 5000 ms
+    "COM_OF_LOSS_T": 3.0,  # GUID_TIMEOUT 3 s: a velocity target is kept that long
+    "COM_OBL_RC_ACT": 5,  # then the vehicle stops and holds, as ArduCopter's GUIDED does
+    "MPC_LAND_SPEED": 0.6,  # LAND_SPEED 50 cm/s is below the core's floor; the nearest it takes
+}
+"""Core parameter defaults of an ArduCopter vehicle (ArduCopter's defaults in core units)."""
+
+STREAM_GROUPS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA1", "EXTRA2", "EXTRA3", "PARAMS")
+"""The ``SRx_*`` stream-rate parameters (Hz), x = the link (0 SERIAL0 = TCP, 1 the API UDP port, 2 the GCS).
+The server has one stream schedule for all links: a group goes out at the fastest rate of SR0..SR2, with
+the defaults on SR0 (TCP) and 0 on the others: a request on TCP sets the rate, one on UDP can only raise it."""
+
+STREAM_DEFAULT_HZ: dict[str, float] = {
+    "RAW_SENS": 0.0,
+    "EXT_STAT": 2.0,
+    "RC_CHAN": 0.0,
+    "RAW_CTRL": 0.0,
+    "POSITION": 10.0,
+    "EXTRA1": 10.0,
+    "EXTRA2": 4.0,
+    "EXTRA3": 2.0,
+    "PARAMS": 0.0,
+}
+LINKS = 3
+
+FENCE_ACTION_TO_CORE = {0: 1, 1: 3, 2: 5, 3: 3, 4: 2, 5: 3}
+"""FENCE_ACTION (0 report, 1 RTL, 2 land, 3 SmartRTL, 4 brake, 5 SmartRTL or land) -> GF_ACTION."""
+
+
+def _own(name: str, default: float, lo: float, hi: float, unit: str = "", desc: str = "") -> ParamDef:
+    return ParamDef(name, ParamType.FLOAT, float(default), lo, hi, unit, desc)
+
+
+def _own_i(name: str, default: int, lo: int, hi: int, desc: str = "") -> ParamDef:
+    return ParamDef(name, ParamType.INT32, default, lo, hi, "", desc)
+
+
+def own_defs(sysid: int) -> tuple[ParamDef, ...]:
+    defs = [
+        _own_i("SYSID_THISMAV", sysid, 1, 255, "MAVLink system id of this vehicle (read only here)"),
+        _own_i("SYSID_MYGCS", 255, 1, 255),
+        _own_i("FRAME_CLASS", 1, 0, 15, "1 = quad"),
+        _own_i("FRAME_TYPE", 1, 0, 19, "1 = X"),
+        _own_i("ARMING_CHECK", 1, 0, 0x7FFFFFFF, "0 skips the pre-arm checks"),
+        _own_i("FENCE_ENABLE", 0, 0, 1),
+        _own_i("FENCE_TYPE", 7, 0, 15, "bit 0 max altitude, bit 1 circle around home"),
+        _own_i("FENCE_ACTION", 1, 0, 5),
+        _own("FENCE_ALT_MAX", 100.0, 10.0, 1000.0, "m"),
+        _own("FENCE_RADIUS", 150.0, 30.0, 10000.0, "m"),
+        _own("CIRCLE_RADIUS", 1000.0, 0.0, 200000.0, "cm"),
+        _own("CIRCLE_RATE", 20.0, -90.0, 90.0, "deg/s"),
+        _own_i("BATT_MONITOR", 4, 0, 30),
+        _own_i("GPS_TYPE", 1, 0, 26),
+        _own_i("AHRS_EKF_TYPE", 3, 0, 11),
+        _own_i("EK3_ENABLE", 1, 0, 1),
+    ]
+    for x in range(LINKS):  # defaults on SR0; a link's request raises its own SRx
+        defs += [_own(f"SR{x}_{g}", STREAM_DEFAULT_HZ[g] if x == 0 else 0.0, 0.0, 50.0, "Hz") for g in STREAM_GROUPS]
+    return tuple(defs)
+
+
+class CopterParams(Params):
+    """ArduCopter-named parameters, kept in step with the core registry ``core``."""
+
+    def __init__(self, core: Params, sysid: int) -> None:
+        self.core = core
+        self._mapped = {m.name: m for m in MAPPED if m.core in core}
+        self._by_core = {m.core: m for m in self._mapped.values()}
+        mapped_defs = []
+        for m in self._mapped.values():
+            d = core.definition(m.core)
+            assert d is not None
+            mapped_defs.append(
+                ParamDef(m.name, m.type, round(d.default * m.scale, 6), d.min * m.scale, d.max * m.scale, m.unit)
+            )
+        super().__init__(tuple(mapped_defs) + own_defs(sysid))
+        self._syncing = False
+        for m in self._mapped.values():  # current core values (overrides included)
+            super().set(m.name, self._from_core(m, core[m.core]))
+        core.subscribe(self._core_changed)
+
+    @staticmethod
+    def _from_core(m: Mapped, value: float) -> float:
+        v = value * m.scale
+        return float(round(v)) if m.type == ParamType.INT32 else round(v, 6)
+
+    def set(self, name: str, value: float) -> CommandResult:
+        m = self._mapped.get(name)
+        if m is not None and not self._syncing:
+            r = self.core.set(m.core, float(value) / m.scale)  # the core validates; its change comes back here
+            if not r.ok:
+                return CommandResult.denied(f"{name}={value}: {r.reason} (as {m.core})")
+            return super().set(name, value)
+        if name == "SYSID_THISMAV" and name in self and value != self[name]:
+            return CommandResult.denied("SYSID_THISMAV is fixed by the run (the vehicle index + 1)")
+        r = super().set(name, value)
+        if r.ok and name.startswith("FENCE_"):
+            self.apply_fence()
+        return r
+
+    def _core_changed(self, core_name: str, value: float) -> None:
+        m = self._by_core.get(core_name)
+        if m is None or self._syncing:
+            return
+        self._syncing = True
+        try:
+            super().set(m.name, self._from_core(m, value))
+        finally:
+            self._syncing = False
+
+    def apply_fence(self) -> None:
+        """FENCE_* to the core's GF_* limits (0 = off)."""
+        enabled = int(self["FENCE_ENABLE"]) == 1
+        kind = int(self["FENCE_TYPE"])
+        alt = self["FENCE_ALT_MAX"] if enabled and kind & 1 else 0.0
+        radius = self["FENCE_RADIUS"] if enabled and kind & 2 else 0.0
+        for core_name, v in (
+            ("GF_MAX_VER_DIST", alt),
+            ("GF_MAX_HOR_DIST", radius),
+            ("GF_ACTION", FENCE_ACTION_TO_CORE.get(int(self["FENCE_ACTION"]), 3)),
+        ):
+            if core_name in self.core:
+                r = self.core.set(core_name, v)
+                if not r.ok:
+                    log.warning("fence parameter not applied: %s", r.reason)
+
+    def stream_hz(self, group: str) -> float:
+        """The fastest rate any link asks for this stream group."""
+        return max(self[f"SR{x}_{group}"] for x in range(LINKS))

@@ -1,0 +1,122 @@
+"""Firmware personalities: what a vehicle's MAVLink side says it is, on one flight core.
+
+The services of ``harness.autopilot.mavlink`` (commands, parameters, mission, telemetry) speak the PX4
+dialect. A :class:`Dialect` is the thin layer of one firmware over them, made per vehicle by
+:func:`make_dialect`:
+
+- ``api``: the autopilot as the services see it (ArduCopter: mission seq 0 = home, ArduPilot parameter
+  names, ArduPilot status texts);
+- identity: ``heartbeat`` (autopilot type, custom mode numbers) and ``autopilot_version``;
+- ``command_handlers``: commands whose meaning differs (DO_SET_MODE, NAV_TAKEOFF's altitude, ...);
+- ``handle``: messages the firmware treats on its own (SET_MODE, GUIDED targets, REQUEST_DATA_STREAM);
+  None lets the generic service have them;
+- ``builders`` / ``stream_defaults``: extra telemetry and the default stream rates;
+- ``tick``: periodic extras (ArduPilot's PreArm reports, the region of interest);
+- ``mission_float_form`` / ``param_bytewise``: protocol conventions.
+
+PX4 is the identity of the services themselves (:class:`Px4Dialect` adds nothing). A third firmware is one
+module with a ``Dialect`` class and a line in ``_FACTORIES``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Protocol
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from harness.autopilot.api import AutopilotApi, Severity, VehicleState
+from harness.autopilot.firmware import Firmware
+from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
+from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule, heartbeat_message
+from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
+from harness.autopilot.mavlink.telemetry import DEFAULT_INTERVALS_NS, Builder, StreamScheduler
+from harness.autopilot.mavlink.version import autopilot_version
+
+
+class DialectHost(Protocol):
+    """What a dialect may use of its server (the server thread calls the dialect, under the server lock)."""
+
+    streams: StreamScheduler
+    heartbeat: HeartbeatSchedule
+
+    @property
+    def mav(self) -> mavlink2.MAVLink:
+        """The encoder (its ``*_encode`` methods build messages)."""
+        ...
+
+    def say(self, severity: Severity, text: str, now: int) -> None: ...
+    def link_name(self, link: int) -> str: ...
+
+
+class Dialect(Protocol):
+    api: AutopilotApi
+    mission_float_form: bool
+    param_bytewise: bool
+    builders: Mapping[int, Builder]
+    stream_defaults: Mapping[int, int]
+
+    def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None: ...
+    def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage: ...
+    def autopilot_version(self, mav: mavlink2.MAVLink, sysid: int) -> MAVLinkMessage: ...
+    def command_handlers(self) -> Mapping[int, Callable[[CommandIn], CommandOutcome]]: ...
+    def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out] | None: ...
+    def tick(self, state: VehicleState, now: int) -> list[Out]: ...
+
+
+class Px4Dialect:
+    """PX4: the services as they are."""
+
+    mission_float_form = False
+    param_bytewise = True
+
+    def __init__(self, api: AutopilotApi) -> None:
+        self.api = api
+        self.builders: Mapping[int, Builder] = {}
+        self.stream_defaults: Mapping[int, int] = DEFAULT_INTERVALS_NS
+
+    def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None:
+        pass
+
+    def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage:
+        return heartbeat_message(mav, state)
+
+    def autopilot_version(self, mav: mavlink2.MAVLink, sysid: int) -> MAVLinkMessage:
+        return autopilot_version(mav, sysid)
+
+    def command_handlers(self) -> Mapping[int, Callable[[CommandIn], CommandOutcome]]:
+        return {}
+
+    def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out] | None:
+        return None
+
+    def tick(self, state: VehicleState, now: int) -> list[Out]:
+        return []
+
+
+def _ardupilot(api: AutopilotApi, sysid: int) -> Dialect:
+    from harness.autopilot.mavlink.ardupilot.dialect import CopterDialect
+
+    return CopterDialect(api, sysid)
+
+
+_FACTORIES: dict[Firmware, Callable[[AutopilotApi, int], Dialect]] = {
+    Firmware.PX4: lambda api, _sysid: Px4Dialect(api),
+    Firmware.ARDUPILOT: _ardupilot,
+}
+
+
+__all__ = ["Dialect", "DialectHost", "Firmware", "Px4Dialect", "core_param_defaults", "make_dialect"]
+
+
+def make_dialect(firmware: Firmware, api: AutopilotApi, sysid: int) -> Dialect:
+    return _FACTORIES[firmware](api, sysid)
+
+
+def core_param_defaults(firmware: Firmware) -> dict[str, float]:
+    """Core parameter values a firmware's vehicles start with (before scenario overrides)."""
+    if firmware is Firmware.ARDUPILOT:
+        from harness.autopilot.mavlink.ardupilot.params import CORE_DEFAULTS
+
+        return dict(CORE_DEFAULTS)
+    return {}
