@@ -25,6 +25,10 @@ from harness.fdm.frame import Gps, SensorFrame
 _HIST = 64
 
 
+GPS_CHECK_NS = 10_000_000_000
+"""PX4 EKF2 uses the GPS (and reports a global position) once its checks have passed for 10 s."""
+
+
 class Estimator:
     def __init__(self, params: Params, use_ground_truth: bool = False, origin: GeoRef | None = None) -> None:
         self.params = params
@@ -40,6 +44,8 @@ class Estimator:
         self.abn = self.abe = self.abd = 0.0
         self.att_valid = False
         self.pos_valid = False
+        self.gps_good_since_ns: int | None = None
+        """Since when every GPS sample passed the checks (None: the last one failed)."""
         self.height_valid = False
         self.ref_alt_valid = False
         self.last_gps_ns = -(10**18)
@@ -96,6 +102,12 @@ class Estimator:
     def yaw(self) -> float:
         w, x, y, z = self.q
         return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+    def global_position_ok(self, t_ns: int) -> bool:
+        """The global position is usable, as PX4's EKF2 reports it: GPS checks passed for ``GPS_CHECK_NS``
+        (the altitude reference and the position filter have settled; PX4 sets home only then)."""
+        since = self.gps_good_since_ns
+        return self.pos_valid and self.gps_fix_ok() and since is not None and t_ns - since >= GPS_CHECK_NS
 
     def gps_fix_ok(self) -> bool:
         g = self.gps
@@ -258,7 +270,10 @@ class Estimator:
     def _fuse_gps(self, g: Gps, t_ns: int) -> None:
         good = g.fix_type >= 3 and g.satellites >= self._req_sats and g.eph_m <= self._req_eph
         if not good:
+            self.gps_good_since_ns = None
             return
+        if self.gps_good_since_ns is None:
+            self.gps_good_since_ns = t_ns
         if self.ref is None:
             self.ref = GeoRef(g.lat_deg, g.lon_deg, g.alt_amsl_m)
             self.pn = self.pe = 0.0
@@ -322,4 +337,5 @@ class Estimator:
         self.accel_body = frame.imu.accel_body_m_s2
         self.gps = frame.gps if frame.gps is not None else self.gps
         self.att_valid = self.pos_valid = self.height_valid = self.ref_alt_valid = True
+        self.gps_good_since_ns = -GPS_CHECK_NS
         self.last_gps_ns = self.last_baro_ns = self.last_mag_ns = self.last_imu_ns = frame.t_ns

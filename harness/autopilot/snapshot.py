@@ -31,7 +31,7 @@ def build_state(ap: Autopilot) -> VehicleState:
         accel_ok=imu_ok,
         mag_ok=t - e.last_mag_ns < 2 * fresh,
         baro_ok=t - e.last_baro_ns < fresh,
-        gps_ok=e.gps_fix_ok() and e.pos_valid,
+        gps_ok=e.global_position_ok(c.t_ns),
         local_position_ok=e.pos_valid,
         home_ok=ap.home is not None,
         preflight_ok=ap.arming_check() == "",

@@ -125,7 +125,7 @@ class Rig:
         self.paused = threading.Event()
         self._stop = threading.Event()
         self._frame = self.sim.frame()
-        self.step_s(3.0)  # estimator converged, GPS fix: armable
+        self.step_s(11.0)  # estimator converged, GPS checks passed for 10 s (EKF2): global position ok, armable
         self.server = MavlinkServer(self.ap, 0, PortsConfig(api_port_base=gcs.port, gcs_port=0), signing)
         self._thread: threading.Thread | None = None
 
