@@ -29,7 +29,7 @@ from typing import Any
 
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
-from harness.record.world import WorldRecorder
+from harness.record.sink import WorldSink, open_world
 from harness.scenario.ports import allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
@@ -81,6 +81,10 @@ class LaunchPlan:
     """"in-process": autopilots and MAVLink servers live in the physics process (no socket hop per tick);
     "process": one SITL-like autopilot process for all vehicles, connected to the channel."""
     progress: Callable[[str], None] | None = None
+    view_port: int | None = None
+    """Serve the run's 3D view (``world.rrd``'s stream) live to Rerun viewers on this loopback gRPC port."""
+    on_view: Callable[[str], None] | None = None
+    """Called with the live view's address (``rerun+http://…``) once it serves, before the simulation starts."""
 
 
 @dataclass
@@ -246,7 +250,7 @@ class Launcher:
             )
         )
         channel.attach_physics()
-        world = WorldRecorder(plan.out / "world.mcap", self.epoch_ns, n)
+        world = open_world(plan.out, self.epoch_ns, n, plan.origin, serve_port=plan.view_port)
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         faults: list[dict[str, Any]] = []
         status, message = "ok", ""
@@ -263,8 +267,11 @@ class Launcher:
                         f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i sends to udp port "
                         f"{self.api_port_base}+i (a script's udpin://0.0.0.0:{self.api_port_base} reaches vehicle 0)"
                     )
+                if plan.on_view is not None and world.view is not None and world.view.grpc_url:
+                    plan.on_view(world.view.grpc_url)
                 if plan.autopilots == "in-process":
                     local = self._local_autopilots(channel)
+                    world.attach_autopilots(self._aps)
                 self._start_children(sup, channel.address)
                 expected = (
                     (0 if local else 1) + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
@@ -419,7 +426,7 @@ class Launcher:
             )
 
     def _loop(
-        self, phys: Any, channel: Channel, world: WorldRecorder, summaries: list[VehicleSummary], sup: Any
+        self, phys: Any, channel: Channel, world: WorldSink, summaries: list[VehicleSummary], sup: Any
     ) -> tuple[str, str, int]:
         plan = self.plan
         n = plan.vehicles
