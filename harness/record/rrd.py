@@ -16,7 +16,8 @@ Entities (``world`` is NED, x north, y east, z down, as ``ViewCoordinates.FRD``)
 
 - ``world/vehicle/<i>``: the body transform (true position and attitude); under it a quad-X drawn at
   ``BODY_SCALE`` times its size so it shows in a swarm-wide view, labelled with name and mode;
-- ``world/trails``, ``world/velocity``: the last ``trail_s`` of every vehicle's path; its velocity vector;
+- ``world/trails``, ``world/velocity``, ``world/markers``: the last ``trail_s`` of every vehicle's path; its
+  velocity vector; a dot of fixed screen size on it (visible at any zoom);
 - ``world/spawn``, ``world/home``, ``world/mission/<i>``, ``world/geofence/<i>``: spawn and home points,
   the mission items and geofence each autopilot holds (changes are logged when they happen);
 - ``world/links``, ``world/drops``: radio links coloured by their recent delivery ratio, drops in red;
@@ -46,7 +47,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 R_EARTH_M = 6378137.0
-BODY_SCALE = 3.0
+BODY_SCALE = 4.0
 """Vehicles are drawn this many times their real size (arm 0.25 m): visible when the view holds a swarm."""
 TRAIL_DT_S = 0.2
 """One trail point per this much sim time."""
@@ -269,8 +270,10 @@ class RrdRecorder:
                 ),
                 static=True,
             )  # its label (name and mode) is logged on the timeline: static data would hide it
-        names = [f"vehicle {i}" for i in range(self.n)]
         colors = [vehicle_color(i) for i in range(self.n)]
+        rec.log("world/markers", rr.Points3D.from_fields(colors=colors, radii=-5.0), static=True)
+        rec.log("map/vehicles", rr.GeoPoints.from_fields(colors=colors, radii=-6.0), static=True)
+        names = [f"vehicle {i}" for i in range(self.n)]
         for series in ("altitude_m", "speed_m_s", "battery_pct", "link_delivery_pct"):
             rec.log(f"series/{series}", rr.SeriesLines(names=names, colors=colors), static=True)
         rec.log(
@@ -313,6 +316,11 @@ class RrdRecorder:
             "world/velocity",
             indexes=times,
             columns=rr.Arrows3D.columns(origins=pos.reshape(-1, 3), vectors=vel.reshape(-1, 3)).partition([n] * k),
+        )
+        rec.send_columns(  # a dot of fixed screen size on each vehicle: visible at any zoom
+            "world/markers",
+            indexes=times,
+            columns=rr.Points3D.columns(positions=pos.reshape(-1, 3)).partition([n] * k),
         )
         rec.send_columns(
             "map/vehicles",
