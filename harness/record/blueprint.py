@@ -4,22 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
-EYE_POSITION_NED_M = (-30.0, 50.0, -35.0)
-EYE_TARGET_NED_M = (15.0, 15.0, -8.0)
-
 
 def blueprint(n_vehicles: int) -> Any:
     """A ``rerun.blueprint.Blueprint`` for a run of ``n_vehicles`` (the map tab works only with map tiles)."""
     import rerun.blueprint as rrb
 
-    scene = rrb.Spatial3DView(
-        name="swarm (3D)",
-        origin="world",
-        # the eye starts on the area around the world origin, where vehicles spawn (from 50 m east, 30 m south
-        # and 35 m up), so a swarm fills the view however large the geofence around it; double-click the
-        # view to fit everything
-        eye_controls=rrb.archetypes.EyeControls3D(position=EYE_POSITION_NED_M, look_target=EYE_TARGET_NED_M),
-    )
+    scene = rrb.Spatial3DView(name="swarm (3D)", origin="world")  # the eye fits the scene; double-click refits
     geo = rrb.MapView(name="map", origin="map")
     series = [
         rrb.TimeSeriesView(name=title, origin=f"series/{path}")
