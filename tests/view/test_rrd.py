@@ -3,6 +3,7 @@ vehicle's pose for the whole run, the same poses as ``world.mcap``; plus what th
 
 from __future__ import annotations
 
+import itertools
 import json
 import subprocess
 import sys
@@ -43,8 +44,20 @@ def read_rrd(path: Path) -> dict[str, dict[str, list[Any]]]:
 def test_world_rrd_of_a_two_vehicle_run_holds_every_pose(tmp_path: Path) -> None:
     out = tmp_path / "run"
     proc = subprocess.run(
-        [sys.executable, "-m", "harness.cli", "run", "--vehicles", "2", "--out", str(out), "--network", "builtin"]
-        + ["--mission", str(ROOT / "missions" / "takeoff_and_land.py")],
+        [
+            sys.executable,
+            "-m",
+            "harness.cli",
+            "run",
+            "--vehicles",
+            "2",
+            "--out",
+            str(out),
+            "--network",
+            "builtin",
+            "--mission",
+            str(ROOT / "missions" / "takeoff_and_land.py"),
+        ],
         capture_output=True,
         text=True,
         timeout=300,
@@ -62,7 +75,7 @@ def test_world_rrd_of_a_two_vehicle_run_holds_every_pose(tmp_path: Path) -> None
         quat = [row[0] for row in body["Transform3D:quaternion"]]
         assert len(t) == len(pos) == len(quat)
         assert t == sorted(t) and t[0] == 0.0 and t[-1] >= sim_s - 0.05, (t[0], t[-1], sim_s)
-        assert max(b - a for a, b in zip(t, t[1:], strict=False)) <= 0.021  # 50 Hz, no gap
+        assert max(b - a for a, b in itertools.pairwise(t)) <= 0.021  # 50 Hz, no gap
         poses = mcap[f"/vehicle/{i}/pose"]
         assert len(poses) == len(t)
         for k in (0, len(t) // 2, len(t) - 1):  # the same truth as world.mcap: position and attitude
