@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -26,6 +27,12 @@ INSTALL_HINT = "install the view extra: pip install 'uav-harness[view]' (python3
 
 def rerun_available() -> bool:
     return importlib.util.find_spec("rerun") is not None
+
+
+def rrd_wanted(serve_port: int | None) -> bool:
+    """``world.rrd`` is written whenever Rerun is installed, unless ``HARNESS_RRD=0`` (benchmarks, big sweeps)
+    and no live view was asked for."""
+    return rerun_available() and (serve_port is not None or os.environ.get("HARNESS_RRD", "1") != "0")
 
 
 class WorldSink(Protocol):
@@ -126,10 +133,13 @@ def open_world(
     *,
     serve_port: int | None = None,
 ) -> WorldTee:
-    """``out/world.mcap``, plus ``out/world.rrd`` when Rerun is installed (served live on ``serve_port``)."""
+    """``out/world.mcap``, plus ``out/world.rrd`` when Rerun is installed (served live on ``serve_port``).
+
+    The environment variable ``HARNESS_RRD=0`` leaves ``world.rrd`` out (unless a live view is asked for).
+    """
     mcap = WorldRecorder(out / "world.mcap", epoch_ns, n_vehicles)
     view: RrdRecorder | None = None
-    if rerun_available():
+    if rrd_wanted(serve_port):
         from harness.record.rrd import RrdRecorder
 
         try:
