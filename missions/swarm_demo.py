@@ -1,11 +1,10 @@
 #!/usr/bin/env python3
 """The Quickstart demo: a swarm flocks over the radio to a waypoint and home again, then lands.
 
-Every vehicle uploads a geofence (a 160 m square around its home), takes off to its own altitude and
-flies MAVSDK offboard velocity: towards the goal (60 m north, 40 m east of home), kept together and apart
+Every vehicle takes off to its own altitude and flies MAVSDK offboard velocity: towards the goal (60 m north, 40 m east of home), kept together and apart
 by what its neighbours broadcast 5 times a (sim) second over `harness.net.radio` (separation, alignment,
 cohesion). A vehicle turns for home only once it is at the goal and every neighbour it hears says it is
-there too (or after 20 s of waiting) — the swarm turns as one. At home it lands.
+there too (or after 20 s of waiting; a leg gives up after 90 s) — the swarm turns as one. At home it lands.
 
     harness run --vehicles 3 --mission missions/swarm_demo.py --network builtin
 """
@@ -15,7 +14,7 @@ import json
 import math
 
 from mavsdk import System
-from mavsdk.geofence import FenceType, GeofenceData, Point, Polygon
+from mavsdk.action import ActionError
 from mavsdk.offboard import VelocityNedYaw
 
 from harness.net import radio
@@ -26,16 +25,11 @@ ARRIVED_M = 6.0
 SEPARATION_M, SEPARATION_GAIN = 6.0, 0.8
 COHESION_GAIN, ALIGNMENT_GAIN, GOAL_GAIN = 0.1, 0.3, 0.25
 MAX_SPEED_M_S = 4.0
+LEG_TIMEOUT_S = 90.0
 
 
 def local(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
     return (math.radians(lat - lat0) * R_EARTH, math.radians(lon - lon0) * R_EARTH * math.cos(math.radians(lat0)))
-
-
-def offset(lat: float, lon: float, north_m: float, east_m: float) -> Point:
-    return Point(
-        lat + math.degrees(north_m / R_EARTH), lon + math.degrees(east_m / (R_EARTH * math.cos(math.radians(lat))))
-    )
 
 
 async def flock_to(drone: System, home: object, goal: tuple[float, float], leg: str, wait_s: float) -> None:
@@ -44,7 +38,8 @@ async def flock_to(drone: System, home: object, goal: tuple[float, float], leg: 
     neighbours: dict[int, dict] = {}
     loop = asyncio.get_running_loop()
     arrived_at = None
-    while True:
+    give_up = loop.time() + LEG_TIMEOUT_S  # a neighbour that cannot follow must not keep the others up forever
+    while loop.time() < give_up:
         async for pv in drone.telemetry.position_velocity_ned():
             break
         async for pos in drone.telemetry.position():
@@ -99,11 +94,15 @@ async def run() -> None:
             break
     async for home in drone.telemetry.home():
         break
-    lat, lon = home.latitude_deg, home.longitude_deg
-    corners = [offset(lat, lon, n, e) for n, e in ((-80, -80), (80, -80), (80, 80), (-80, 80))]
-    await drone.geofence.upload_geofence(GeofenceData([Polygon(corners, FenceType.INCLUSION)], []))
     await drone.action.set_takeoff_altitude(8.0 + 3.0 * me)
-    await drone.action.arm()
+    for attempt in range(5):  # on a loaded machine MAVSDK may try to arm before it knows the autopilot is PX4
+        try:
+            await drone.action.arm()
+            break
+        except ActionError:
+            if attempt == 4:
+                raise
+            await asyncio.sleep(1.0)
     await drone.action.takeoff()
     await asyncio.sleep(10)
     await drone.offboard.set_velocity_ned(VelocityNedYaw(0.0, 0.0, 0.0, 0.0))
