@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import signal
@@ -267,7 +268,8 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
 
     a.mission, a.duration, a.plot = [], None, False
     _terminate_as_interrupt()
-    plan = _plan_from_args(a)
+    # hand-run MAVSDK scripts listen on 14540 + i (udpin://0.0.0.0:14540 reaches vehicle 0)
+    plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540)
     print(f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time; Ctrl-C stops.", flush=True)
     result = Launcher(plan).run()
     return 0 if result.status in ("ok", "interrupted") else 1

@@ -98,7 +98,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m harness.autopilot.sitl", description=__doc__)
     ap.add_argument("--address", required=True, help="channel address")
     ap.add_argument("--vehicles", required=True, help="comma-separated vehicle indices")
-    ap.add_argument("--api-port-base", type=int, default=14540)
+    ap.add_argument("--api-port-base", type=int, default=14540, help="send to this port + i (0: only to peers)")
+    ap.add_argument("--api-local-port-base", type=int, default=0, help="listen on this port + i (0: any free port)")
     ap.add_argument("--gcs-port", type=int, default=14550)
     ap.add_argument("--run-dir", type=Path, default=None, help="write vehicle-<i>.tlog here")
     ap.add_argument("--params", default="{}", help='JSON: {"<vehicle>": {"PARAM": value}}')
@@ -112,7 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         signing = SigningConfig(bytes.fromhex(a.signing_key)) if a.signing_key else None
     except (ValueError, json.JSONDecodeError) as exc:
         raise ScenarioError(f"autopilot process: bad argument: {exc}") from None
-    ports = PortsConfig(api_port_base=a.api_port_base, gcs_port=a.gcs_port)
+    ports = PortsConfig(api_port_base=a.api_port_base, api_local_port_base=a.api_local_port_base, gcs_port=a.gcs_port)
     hub = MavlinkHub().start()
     try:
         run_autopilots(

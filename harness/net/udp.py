@@ -7,23 +7,28 @@ same one on one machine; ``sendto`` to a radio address hands the datagram to
 the network model (ENQUEUE) instead of the kernel. Timeouts (``settimeout``) are sim time. Everything else
 — other addresses, TCP, MAVSDK's and asyncio's own sockets — is the real socket, untouched.
 
-Supported: blocking ``sendto``/``recvfrom``/``recv`` with or without ``settimeout``. Not supported: radio
-traffic through asyncio datagram endpoints or ``select`` (use ``harness.net.radio.receive_async``).
+Radio sockets block, time out and poll (``select``, non-blocking) on the sim clock like every socket of a
+mission (:mod:`harness.simclock.simsocket`); a socket bound to the wildcard address gets both radio packets and
+real datagrams. Not supported: radio traffic through asyncio datagram endpoints (use
+``harness.net.radio.receive_async``).
 """
 
 from __future__ import annotations
 
 import ipaddress
-import socket as _socket
 from typing import Any
 
+from harness.simclock import simsocket
+from harness.simclock.endpoints import VehicleEndpoints, udp_listen_redirected
 from harness.simclock.protocol import BROADCAST
 from harness.simclock.runtime import SimRuntime
+from harness.simclock.simsocket import SimSocket
+
+_original_socket = simsocket._original_socket
 
 RADIO_NET = ipaddress.ip_network("10.42.0.0/24")
 BROADCAST_ADDR = "10.42.0.255"
 
-_original_socket = _socket.socket
 _rt: SimRuntime | None = None
 
 
@@ -43,43 +48,50 @@ def _radio_host(host: Any) -> int | None:
     return BROADCAST if last == 255 else last - 1
 
 
-class RadioSocket(_original_socket):
-    """``socket.socket`` that routes UDP on the 10.42.0.0/24 radio network through the simulation."""
+class RadioSocket(SimSocket):
+    """A mission's socket that also reaches the 10.42.0.0/24 radio network through the simulation."""
 
     _radio_port: int | None = None
-    _sim_timeout: float | None = None
 
     def bind(self, address: Any) -> None:
-        if _rt is not None and self.type == _socket.SOCK_DGRAM and self.family == _socket.AF_INET:
+        if _rt is not None and self._is_inet_dgram() and isinstance(address, tuple):
             host, port = address[0], int(address[1])
-            if host in ("", "0.0.0.0") or _radio_host(host) is not None:
+            wildcard = host in ("", "0.0.0.0") and not udp_listen_redirected(host, port)
+            if wildcard or _radio_host(host) is not None:
                 # every vehicle's process shares this machine: the radio port is virtual, the kernel socket
                 # gets an ephemeral loopback port so that five vehicles can all "bind" port 5005
-                super().bind(("127.0.0.1", 0))
-                self._radio_port = port or int(super().getsockname()[1])
+                _original_socket.bind(self, ("127.0.0.1", 0))
+                self._radio_port = port or int(self.getsockname()[1])
                 return
         super().bind(address)
-
-    def settimeout(self, value: float | None) -> None:
-        self._sim_timeout = value
-        super().settimeout(value)
 
     def sendto(self, data: Any, *args: Any) -> int:
         address = args[-1]
         dst = _radio_host(address[0]) if isinstance(address, tuple) else None
         if dst is None or _rt is None:
-            return int(super().sendto(data, *args))
+            return super().sendto(data, *args)
         payload = bytes(data)
         _rt.queue_packet(dst, int(address[1]), payload)
         return len(payload)
 
+    def _sim_ready(self) -> bool:
+        return self._radio_port is not None and _rt is not None and _rt.has_delivery(self._radio_port)
+
+    def _waits_on_inbox(self) -> bool:
+        return self._radio_port is not None
+
     def recvfrom(self, bufsize: int, flags: int = 0) -> tuple[bytes, Any]:
-        if self._radio_port is None or _rt is None:
+        rt, port = _rt, self._radio_port
+        if port is None or rt is None:
             return super().recvfrom(bufsize, flags)
-        d = _rt.take_delivery(self._radio_port, self._sim_timeout)
-        if d is None:
-            raise TimeoutError("timed out")  # socket.timeout is TimeoutError since Python 3.10
-        return d.payload[:bufsize], (radio_address(d.src), d.port)
+
+        def radio_or_kernel() -> tuple[bytes, Any]:
+            d = rt.pop_delivery(port)
+            if d is not None:
+                return d.payload[:bufsize], (radio_address(d.src), d.port)
+            return _original_socket.recvfrom(self, bufsize, flags)
+
+        return self._blocking(radio_or_kernel)
 
     def recv(self, bufsize: int, flags: int = 0) -> bytes:
         if self._radio_port is None or _rt is None:
@@ -87,14 +99,14 @@ class RadioSocket(_original_socket):
         return self.recvfrom(bufsize, flags)[0]
 
 
-def install(rt: SimRuntime) -> None:
-    """Route radio-address UDP of sockets created from now on through ``rt`` (mission processes only)."""
+def install(rt: SimRuntime, ep: VehicleEndpoints | None = None) -> None:
+    """Sockets created from now on are :class:`RadioSocket` (mission processes only)."""
     global _rt
     _rt = rt
-    _socket.socket = RadioSocket  # type: ignore[misc]
+    simsocket.install(rt, ep, RadioSocket)
 
 
 def uninstall() -> None:
     global _rt
     _rt = None
-    _socket.socket = _original_socket  # type: ignore[misc]
+    simsocket.uninstall()

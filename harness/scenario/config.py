@@ -190,7 +190,7 @@ def load_scenario(path: str | Path, **overrides: Any) -> LaunchPlan:
         sensor_noise=_boolean(ctx, sensors.get("noise", True), "sensors.noise"),
         spawn_ned_m=spawns,
         params=tuple(params),
-        api_port_base=ctx.integer(mav.get("api_port_base", 14540), "mavlink.api_port_base", minimum=1),
+        api_port_base=ctx.integer(mav.get("api_port_base", 14580), "mavlink.api_port_base", minimum=1),
         gcs_port=ctx.integer(mav.get("gcs_port", 14550), "mavlink.gcs_port", minimum=0),
     )
     fields = {k: v for k, v in overrides.items() if v is not None}

@@ -30,7 +30,7 @@ from typing import Any
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
-from harness.scenario.ports import allocate
+from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep, real_time_ns
@@ -71,8 +71,12 @@ class LaunchPlan:
     """False: ideal sensors (rates and latency stay)."""
     spawn_ned_m: tuple[tuple[float, float, float], ...] | None = None
     params: tuple[dict[str, float], ...] = ()
-    api_port_base: int = 14540
-    gcs_port: int = 14550
+    api_port_base: int = PX4_API_BASE
+    """Vehicle ``i`` listens for its mission on UDP ``api_port_base + i`` (PX4 SITL's 14580 + i when free)."""
+    gcs_port: int = GCS_PORT
+    api_remote_base: int = 0
+    """Vehicle ``i`` also sends to UDP ``api_remote_base + i`` unasked (``harness sitl``: 14540, where hand-run
+    MAVSDK scripts listen); 0 = only to the peers that spoke to it (``harness run``: its own missions)."""
     record_hz: float = 50.0
     pause_at_s: float | None = None
     """Stand the clock still once sim time reaches this, for ``pause_wall_s`` of wall time (stall tests)."""
@@ -259,13 +263,12 @@ class Launcher:
         ports = allocate(n, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         local: list[Any] = []
-        with Children(plan.out) as sup:
+        with ports, Children(plan.out) as sup:  # the block stays this run's until every process has stopped
             try:
-                ports.release()
-                if plan.progress is not None:  # only now: a ground station may bind the GCS port once it reads this
+                if plan.progress is not None:
                     plan.progress(
-                        f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i sends to udp port "
-                        f"{self.api_port_base}+i (a script's udpin://0.0.0.0:{self.api_port_base} reaches vehicle 0)"
+                        f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
+                        f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
                     )
                 if plan.on_view is not None and world.view is not None and world.view.grpc_url:
                     plan.on_view(world.view.grpc_url)
@@ -346,7 +349,10 @@ class Launcher:
             i: Autopilot(AutopilotConfig(vehicle=i, params=plan.params[i] if i < len(plan.params) else {}))
             for i in range(plan.vehicles)
         }
-        ports = PortsConfig(api_port_base=self.api_port_base, gcs_port=self.gcs_port)
+        # each vehicle binds its API port; missions connect out to it, and nothing goes to anyone else's port
+        ports = PortsConfig(
+            api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
+        )
         hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
         handles: list[Any] = [attach_mavlink(ap, ports, plan.out, None, hub) for ap in aps.values()]
         handles.append(hub)
@@ -373,6 +379,8 @@ class Launcher:
                     "--vehicles",
                     vehicles,
                     "--api-port-base",
+                    str(plan.api_remote_base),
+                    "--api-local-port-base",
                     str(self.api_port_base),
                     "--gcs-port",
                     str(self.gcs_port),

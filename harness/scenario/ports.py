@@ -1,52 +1,104 @@
-"""Port allocation for a run: parallel runs on one machine never collide.
+"""Port allocation for a run: parallel runs on one machine never share a port.
 
-A run needs, per vehicle ``i``, the UDP port its mission (MAVSDK) listens on (``api_base + i``), and one
-GCS port. The standard ports (14540+i, 14550: what PX4 SITL users and QGroundControl expect) are used
-when they are all free; otherwise a free block is chosen. A block is *held* (sockets bound with
-SO_REUSEADDR off) until the run's processes bind it themselves, which closes the race between two
-``harness run`` started at the same moment as far as one machine allows: the second one sees the
-block taken and picks another. Fallback blocks lie below the kernel's ephemeral port range, so no
-socket bound to port 0 (ours or anyone's) can take one of them in the moment between release and bind.
+A run needs, per vehicle ``i``, the UDP port its autopilot listens on for its mission (``api_base + i``;
+the mission connects *out* to it, as a script does to PX4 SITL's 14580), and one GCS port its vehicles
+send to. PX4 SITL's ports (14580+i, and 14550 for the ground station) are used when they are free;
+otherwise a free block is chosen.
+
+A block belongs to a run from allocation to the end of the run: every port of it is locked with an
+advisory ``flock`` on a file per port (``<tmp>/uav-harness-ports-<uid>/<port>.lock``), held by an open
+file of the run's process. Two ``harness run`` started in the same instant therefore never get the same
+port, even for the ports that no process of the run binds (the GCS port belongs to whichever ground
+station binds it), and a run that dies releases its locks with its process: nothing goes stale. Ports
+another program has bound are skipped too (a probe bind with SO_REUSEADDR off). Fallback blocks lie below
+the kernel's ephemeral port range, so that no socket bound to port 0 can take one of them.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
+import os
 import random
 import socket
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO
 
 from harness.errors import SimulationError
+
+PX4_API_BASE = 14580
+"""PX4 SITL's own MAVLink port for offboard APIs (instance ``i`` listens on ``14580 + i``)."""
+GCS_PORT = 14550
 
 
 @dataclass
 class PortBlock:
     api_base: int
     gcs: int
-    _held: list[socket.socket] = field(default_factory=list, repr=False)
+    vehicles: int = 0
+    _locks: list[IO[bytes]] = field(default_factory=list, repr=False)
+
+    @property
+    def ports(self) -> list[int]:
+        return [self.api_base + i for i in range(self.vehicles)] + ([self.gcs] if self.gcs else [])
 
     def release(self) -> None:
-        """Let the run's own processes bind the ports."""
-        for s in self._held:
+        """Give the ports back (the end of the run; also done by the kernel when the process ends)."""
+        for f in self._locks:
             with contextlib.suppress(OSError):
-                s.close()
-        self._held.clear()
+                f.close()
+        self._locks.clear()
+
+    def __enter__(self) -> PortBlock:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.release()
 
 
-def _hold(ports: list[int]) -> list[socket.socket] | None:
-    held: list[socket.socket] = []
+def lock_dir() -> Path:
+    d = Path(tempfile.gettempdir()) / f"uav-harness-ports-{os.getuid()}"
+    d.mkdir(mode=0o700, exist_ok=True)
+    return d
+
+
+def _lock(port: int) -> IO[bytes] | None:
+    """An exclusive lock on ``port`` among harness runs (None: another run holds it)."""
+    f = (lock_dir() / f"{port}.lock").open("ab")
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        f.close()
+        return None
+    return f
+
+
+def _bindable(port: int) -> bool:
+    """Whether no other program has bound UDP ``port`` on loopback (or on every address)."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s.bind(("127.0.0.1", port))
+        return True
+    except OSError:
+        return False
+    finally:
+        s.close()
+
+
+def _take(ports: list[int]) -> list[IO[bytes]] | None:
+    locks: list[IO[bytes]] = []
     for port in ports:
-        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            s.close()
-            for h in held:
-                h.close()
+        f = _lock(port)
+        if f is None or not _bindable(port):
+            if f is not None:
+                f.close()
+            for held in locks:
+                held.close()
             return None
-        held.append(s)
-    return held
+        locks.append(f)
+    return locks
 
 
 def ephemeral_range() -> tuple[int, int]:
@@ -58,30 +110,32 @@ def ephemeral_range() -> tuple[int, int]:
         return 49152, 65535
 
 
-def _free_span(vehicles: int) -> tuple[int, int]:
+def _free_span(size: int) -> tuple[int, int]:
     """Where to look for a block: below the ephemeral range. Every socket bound to port 0 (the autopilots'
     senders, mavsdk_server's gRPC port, other programs) gets a port from that range, so a block inside it
-    can be taken between our release and the mission's bind (seen with 50 vehicles: "Bind error")."""
+    can be taken by such a socket before the run binds it (seen with 50 vehicles: "Bind error")."""
     lo, _ = ephemeral_range()
-    top = min(lo, 65536) - vehicles - 2
+    top = min(lo, 65536) - size - 1
     if top - 10000 < 1000:  # an unusually wide ephemeral range: fall back to the old span
-        return 20000, 60000 - vehicles - 2
+        return 20000, 60000 - size - 1
     return 10000, top
 
 
-def allocate(vehicles: int, api_base: int = 14540, gcs: int = 14550, rng: random.Random | None = None) -> PortBlock:
-    """The standard ports when free, else a free block below the kernel's ephemeral port range."""
+def allocate(
+    vehicles: int, api_base: int = PX4_API_BASE, gcs: int = GCS_PORT, rng: random.Random | None = None
+) -> PortBlock:
+    """The standard ports when free, else a free block below the kernel's ephemeral port range; locked for
+    this process until :meth:`PortBlock.release` or its end."""
     standard = [api_base + i for i in range(vehicles)] + ([gcs] if gcs else [])
     if len(set(standard)) == len(standard):
-        held = _hold(standard)
-        if held is not None:
-            return PortBlock(api_base, gcs, held)
+        locks = _take(standard)
+        if locks is not None:
+            return PortBlock(api_base, gcs, vehicles, locks)
     rng = rng or random.Random()
-    span_lo, span_hi = _free_span(vehicles)
+    span_lo, span_hi = _free_span(vehicles + 1)
     for _ in range(200):
         base = rng.randrange(span_lo, span_hi)
-        ports = [base + i for i in range(vehicles)] + [base + vehicles]
-        held = _hold(ports)
-        if held is not None:
-            return PortBlock(base, base + vehicles, held)
+        locks = _take([base + i for i in range(vehicles + 1)])
+        if locks is not None:
+            return PortBlock(base, base + vehicles, vehicles, locks)
     raise SimulationError(f"no block of {vehicles + 1} free UDP ports on 127.0.0.1 after 200 tries")

@@ -728,8 +728,14 @@ class Channel:
         self._etas_sent_up = False
         is_root = self._up is not None and self._up.kind == p.PeerKind.PHYSICS
         self._phase_tick = is_root and tick % self.config.phase_every == 0
-        if self._phase_tick and not self._wait1:
-            self._start_phase0()  # else when the phase 1 still running ends (_progress)
+        if self._phase0_may_start():
+            self._start_phase0()  # else when the phase 1 still running ends, or the local autopilots have run
+
+    def _phase0_may_start(self) -> bool:
+        """Phase 0 starts once the previous phase 1 is over and, with in-process autopilots, after they have
+        stepped this tick: what they send their missions over MAVLink at this tick is then in the missions'
+        sockets before phase 0 begins, so a script reads it in this phase whatever the machine's pace."""
+        return self._phase_tick and not self._wait1 and (self._routed or not self._local_autopilots)
 
     def _route_ticks(self) -> None:
         """Forward this tick's BEGIN-TICK-AC to the holders of the vehicles, with per-holder counts."""
@@ -826,10 +832,12 @@ class Channel:
         """Advance the tick state machine as far as the answers received allow."""
         if not self._in_tick:
             return
-        if self._phase_tick and not self._phase0_started and not self._wait1:
+        if not self._phase0_started and self._phase0_may_start():
             self._start_phase0()  # the previous phase 1 has just ended
         if self._bta and not self._routed and len(self._bta) >= self._bta_count:
             self._route_ticks()
+            if not self._phase0_started and self._phase0_may_start():
+                self._start_phase0()  # after the in-process autopilots of this tick
         acs_done = self._routed and not self._wait_ac
         if self._phase0_started and not self._phase0_done and not self._wait0:
             if self._up is not None and self._up.kind == p.PeerKind.CHILD:

@@ -4,9 +4,10 @@
   ``from mavsdk import System`` and ``await drone.connect(...)``; with ``mavsdk`` 4 installed that
   name belongs to the new API, so for such a script the runner makes ``mavsdk`` (and ``mavsdk.<plugin>``)
   resolve to ``mavsdk_grpc`` (PyPI ``mavsdk-grpc``), which is the old API under a new name.
-- Scripts written for one vehicle connect to the standard port 14540 (``udpin://0.0.0.0:14540``,
-  ``udp://:14540``). The runner rewrites that port to the vehicle's own API port, so one unmodified script
-  flies every vehicle of a swarm and parallel runs never collide.
+- Scripts written for one vehicle listen on the standard port 14540 (``udpin://0.0.0.0:14540``,
+  ``udp://:14540``). The runner points them at the vehicle's own port instead (``udpout://127.0.0.1:P``,
+  :mod:`harness.simclock.endpoints`), so one unmodified script flies every vehicle of a swarm, and no
+  other run's script can reach this run's vehicles.
 - The gRPC API starts a ``mavsdk_server`` per ``System()`` on gRPC port 50051 by default; with several
   missions on one machine those collide, so the default becomes a free port.
 """
@@ -25,23 +26,9 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from harness.simclock.endpoints import VehicleEndpoints, mavsdk_url
+
 log = logging.getLogger(__name__)
-
-STANDARD_PORT = 14540
-_URL = re.compile(r"^(?P<scheme>[a-z]+)://(?P<host>\[[^\]]*\]|[^:/]*)(?::(?P<port>\d+))?(?P<rest>.*)$")
-
-
-def rewrite_url(url: str, vehicle_port: int) -> str:
-    """``udpin://0.0.0.0:14540`` → ``udpin://0.0.0.0:<vehicle_port>``; other ports stay as they are."""
-    m = _URL.match(url)
-    if m is None or m.group("scheme") == "serial":
-        return url
-    port = m.group("port")
-    if port is not None and int(port) != STANDARD_PORT:
-        return url
-    if port is None and m.group("scheme") not in ("udp", "udpin"):
-        return url
-    return f"{m.group('scheme')}://{m.group('host')}:{vehicle_port}{m.group('rest')}"
 
 
 def detect_api(source: str) -> str:
@@ -76,7 +63,9 @@ class _AliasFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         pass
 
 
-def _patch_grpc(vehicle_port: int) -> None:
+def _patch_grpc(ep: VehicleEndpoints | None) -> None:
+    from harness.simclock.runtime import current
+
     system_mod = importlib.import_module("mavsdk_grpc.system")
     System = system_mod.System
     if getattr(System, "_harness_patched", False):
@@ -92,9 +81,17 @@ def _patch_grpc(vehicle_port: int) -> None:
         orig_init(self, mavsdk_server_address, port, *a, **kw)
 
     async def connect(self: Any, system_address: str | None = None) -> Any:
-        url = rewrite_url(system_address or f"udpin://0.0.0.0:{STANDARD_PORT}", vehicle_port)
+        url = system_address or "udpin://0.0.0.0:14540"
+        url = mavsdk_url(url, ep) if ep is not None else url
         log.info("mavsdk (gRPC API): connecting to %s", url)
-        return await orig_connect(self, system_address=url)
+        rt = current()
+        if rt is None or not rt._tracked():
+            return await orig_connect(self, system_address=url)
+        rt.hold()  # starting mavsdk_server and discovering the vehicle take no sim time (as a request does)
+        try:
+            return await orig_connect(self, system_address=url)
+        finally:
+            rt.unhold()
 
     System.__init__ = __init__
     System.connect = connect
@@ -133,7 +130,7 @@ def _hold_phase_during_requests() -> None:
     callable_cls._harness_holds = True
 
 
-def _patch_native(vehicle_port: int) -> None:
+def _patch_native(ep: VehicleEndpoints | None) -> None:
     for modname in ("mavsdk.mavsdk", "mavsdk.asyncio.mavsdk"):
         try:
             mod = importlib.import_module(modname)
@@ -146,27 +143,30 @@ def _patch_native(vehicle_port: int) -> None:
             orig = getattr(cls, name, None)
             if orig is None:
                 continue
-            setattr(cls, name, _wrap_connection(orig, vehicle_port))
+            setattr(cls, name, _wrap_connection(orig, ep))
         cls._harness_patched = True
 
 
-def _wrap_connection(orig: Callable[..., Any], vehicle_port: int) -> Callable[..., Any]:
+def _wrap_connection(orig: Callable[..., Any], ep: VehicleEndpoints | None) -> Callable[..., Any]:
+    def rewrite(url: str) -> str:
+        return mavsdk_url(url, ep) if ep is not None else url
+
     import inspect
 
     if inspect.iscoroutinefunction(orig):
 
         async def async_wrapper(self: Any, url: str, *a: Any, **kw: Any) -> Any:
-            return await orig(self, rewrite_url(url, vehicle_port), *a, **kw)
+            return await orig(self, rewrite(url), *a, **kw)
 
         return async_wrapper
 
     def wrapper(self: Any, url: str, *a: Any, **kw: Any) -> Any:
-        return orig(self, rewrite_url(url, vehicle_port), *a, **kw)
+        return orig(self, rewrite(url), *a, **kw)
 
     return wrapper
 
 
-def install(script: Path, vehicle_port: int, api: str | None = None) -> str:
+def install(script: Path, ep: VehicleEndpoints | None, api: str | None = None) -> str:
     """Prepare MAVSDK for ``script``; returns the API used ('native', 'grpc' or '' for none)."""
     source = script.read_text(errors="replace")
     api = api or detect_api(source)
@@ -184,9 +184,9 @@ def install(script: Path, vehicle_port: int, api: str | None = None) -> str:
             for name in [m for m in sys.modules if m == "mavsdk" or m.startswith("mavsdk.")]:
                 del sys.modules[name]
             sys.meta_path.insert(0, _AliasFinder())
-        _patch_grpc(vehicle_port)
+        _patch_grpc(ep)
         return "grpc"
     if api == "native":
-        _patch_native(vehicle_port)
+        _patch_native(ep)
         return "native"
     return ""

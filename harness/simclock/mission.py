@@ -25,6 +25,7 @@ from harness.simclock import mavsdk_compat, patch
 from harness.simclock import protocol as p
 from harness.simclock.client import ChannelClient, ChannelClosed
 from harness.simclock.clock import real_sleep
+from harness.simclock.endpoints import VehicleEndpoints
 from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
 
 log = logging.getLogger(__name__)
@@ -177,13 +178,13 @@ def run_mission(spec: MissionSpec) -> int:
     os.environ.setdefault("HARNESS_VEHICLE", str(spec.vehicle))
     os.environ.setdefault("HARNESS_SYSID", str(spec.vehicle + 1))
     patch.install(rt)
+    ep = VehicleEndpoints.from_env(spec.vehicle)
     from harness.net import udp
 
-    udp.install(rt)  # UDP to 10.42.0.x goes through the simulated network
-    port = int(os.environ.get("HARNESS_MAVLINK_PORT", str(mavsdk_compat.STANDARD_PORT + max(spec.vehicle, 0))))
-    api = mavsdk_compat.install(spec.script, port, os.environ.get("HARNESS_MAVSDK_API") or None)
+    udp.install(rt, ep)  # sockets: sim-time waits, MAVLink to this vehicle, UDP to 10.42.0.x on the radio
+    api = mavsdk_compat.install(spec.script, ep, os.environ.get("HARNESS_MAVSDK_API") or None)
     if api:
-        log.info("mission %s: MAVSDK %s API, vehicle port %d", spec.name, api, port)
+        log.info("mission %s: MAVSDK %s API, vehicle endpoints %s", spec.name, api, ep)
 
     def wake() -> None:
         try:

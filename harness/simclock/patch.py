@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping
 from itertools import islice
 from typing import Any
 
+from harness.simclock import iowait
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns
 from harness.simclock.runtime import SimRuntime, Waiter, set_current
 
@@ -87,6 +88,9 @@ def install(rt: SimRuntime) -> None:
 
     _set(threading.Condition, "wait", _make_condition_wait(rt))
     _set(threading.Condition, "notify", _make_condition_notify(rt))
+
+    for (owner, name), value in iowait.patches(rt).items():
+        _set(owner, name, value)
 
     loop_cls = _make_loop_class(rt)
     policy_cls = type("SimEventLoopPolicy", (asyncio.DefaultEventLoopPolicy,), {"_loop_factory": loop_cls})
@@ -256,6 +260,11 @@ class SimSelector(selectors.BaseSelector):
         return self._inner.select(0)
 
 
+def _raw_selector() -> selectors.BaseSelector:
+    """A selector that waits on the wall clock (``SimSelector`` turns its waits into sim-time waits)."""
+    return iowait.RawEpollSelector() if iowait.real_epoll is not None else selectors.SelectSelector()
+
+
 def _make_loop_class(rt: SimRuntime) -> type[asyncio.AbstractEventLoop]:
     base: type[Any] = unix_events._UnixSelectorEventLoop
 
@@ -263,7 +272,7 @@ def _make_loop_class(rt: SimRuntime) -> type[asyncio.AbstractEventLoop]:
         """The default loop with sim time: timers and timeouts follow the simulation clock."""
 
         def __init__(self, selector: selectors.BaseSelector | None = None) -> None:
-            sel = SimSelector(rt, selector or selectors.DefaultSelector())
+            sel = SimSelector(rt, selector or _raw_selector())
             super().__init__(sel)
             sel.wake = self._write_to_self
 

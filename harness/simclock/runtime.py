@@ -24,6 +24,7 @@ import _thread
 import collections
 import logging
 import os
+import select
 import sys
 import threading
 from collections.abc import Callable
@@ -36,6 +37,7 @@ from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE
 log = logging.getLogger(__name__)
 
 _LockType = type(_thread.allocate_lock())
+_real_select = select.select  # captured before ``patch`` makes select.select a sim-time wait
 _REPORT_AFTER_NS = 3 * NS_PER_S
 
 INFRA_THREAD_PREFIX = "harness-"
@@ -58,6 +60,11 @@ class Waiter:
     """For event loops: how to wake it (write to its self-pipe) instead of releasing ``lock``."""
     released: bool = False
     timed_out: bool = False
+    rfds: tuple[int, ...] = ()
+    wfds: tuple[int, ...] = ()
+    """For I/O waits (``iowait``): the descriptors it waits for, polled when MAVLink settles."""
+    every_phase: bool = False
+    """It waits for its vehicle's MAVLink, which arrives at every phase: no lookahead past this phase."""
 
 
 @dataclass
@@ -116,6 +123,13 @@ class SimRuntime:
         clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
         self._wake_requested = False
         self._holds = 0
+        self.mavlink_fds: set[int] = set()
+        """Descriptors of the script's sockets to its vehicle (``simsocket``)."""
+        self.mavlink_sent = 0
+        """Datagrams the script sent its vehicle (``simsocket``); phase 0 ends only once they are handled."""
+        self._mavlink_synced = 0
+        self.settle_mavlink: Callable[[], bool] | None = None
+        """Waits (wall clock) until the vehicle has handled everything sent to it; False: it did not answer."""
 
     # -- reading the clock (any thread) --------------------------------------------------------
 
@@ -130,6 +144,11 @@ class SimRuntime:
     def run_phase(self, t_ns: int, idle_poll_s: float = 0.001) -> tuple[int, bool]:
         """One phase 0 at sim time ``t_ns``: wake what is due, run until idle. Clock thread only.
 
+        Wake-ups come in two rounds, each run until the script is idle: first the threads whose I/O or
+        notification arrived since the last phase (a reader thread handles the telemetry of this tick), then
+        the timed waits that fall due (a thread polling with ``time.sleep`` sees what the reader stored). So
+        the order of the two is the same at any pace, not the order in which the threads happen to run.
+
         Returns the lookahead for END-TICK-0: the earliest deadline of a timed wait (``NO_DEADLINE`` when
         there is none) and whether a delivered packet would wake a waiting thread.
         """
@@ -140,22 +159,38 @@ class SimRuntime:
             self._now_ns = t_ns
             self._started = True
             self._gate_open = True
-            due = [w for w in self._timed if w.deadline_ns is not None and w.deadline_ns <= t_ns]
-            for w in due:
-                w.timed_out = True
-                self._release_locked(w)
             gated, self._gate_waiters = self._gate_waiters, []
             for w in gated:
                 self._release_locked(w)
+        self._run_until_idle(t_ns, start, idle_poll_s)
+        with self._mu:
+            due = [w for w in self._timed if not w.released and w.deadline_ns is not None and w.deadline_ns <= t_ns]
+            for w in due:
+                w.timed_out = True
+                self._release_locked(w)
             self.stats.waits_released += len(due) + len(gated)
+        if due:
+            self._run_until_idle(t_ns, start, idle_poll_s)
+        with self._mu:
+            self._gate_open = False
+            self._wake_requested = False
+            lookahead = self._lookahead_locked()
+        self.stats.phases += 1
+        self.stats.last_phase_wall_ns = real_monotonic_ns() - start
+        self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
+        return lookahead
+
+    def _run_until_idle(self, t_ns: int, start: int, idle_poll_s: float) -> None:
+        """Wait until every script thread is idle and its MAVLink settled (the gate stays open)."""
         report_at = start + _REPORT_AFTER_NS
         while True:
             with self._mu:
-                if self._all_idle_locked():
-                    self._gate_open = False
-                    self._wake_requested = False
-                    lookahead = self._lookahead_locked()
-                    break
+                idle = self._all_idle_locked()
+                if idle and (self.mavlink_sent == self._mavlink_synced or self.settle_mavlink is None):
+                    return
+            if idle:
+                self._settle()
+                continue
             self._signal.acquire(True, idle_poll_s)
             if real_monotonic_ns() > report_at:
                 report_at += _REPORT_AFTER_NS
@@ -165,13 +200,34 @@ class SimRuntime:
                     (real_monotonic_ns() - start) / NS_PER_S,
                     "; ".join(self.busy_threads()) or "none",
                 )
-        self.stats.phases += 1
-        self.stats.last_phase_wall_ns = real_monotonic_ns() - start
-        self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
-        return lookahead
+
+    def _settle(self) -> None:
+        """The script is idle but sent its vehicle MAVLink in this phase: wait (wall clock) until the vehicle
+        has handled it (``settle_mavlink``), then let every thread whose socket now holds an answer run.
+
+        So a command and its answer take no sim time, and a command takes effect before the next tick,
+        whatever the machine's pace (a MAVSDK request is held the same way, in ``mavsdk_compat``)."""
+        sent = self.mavlink_sent
+        settle = self.settle_mavlink
+        if settle is not None and not settle():
+            log.warning("the vehicle did not confirm the script's MAVLink within 2 s; no longer waiting for it")
+            self.settle_mavlink = None
+        with self._mu:
+            self._mavlink_synced = sent
+            waiters = [w for w in self._idle.values() if (w.rfds or w.wfds) and not w.released]
+        if not waiters:
+            return
+        for w in waiters:
+            try:
+                r, wr, _ = _real_select(w.rfds, w.wfds, [], 0)
+            except (OSError, ValueError):
+                r = wr = [0]
+            if r or wr:
+                with self._mu:
+                    self._release_locked(w)
 
     def _lookahead_locked(self) -> tuple[int, bool]:
-        if self._gate_waiters:
+        if self._gate_waiters or any(w.every_phase for w in self._idle.values()):
             return EVERY_PHASE, True
         deadlines = [w.deadline_ns for w in self._timed if not w.released and w.deadline_ns is not None]
         return min(deadlines, default=NO_DEADLINE), bool(self._inbox_waiters or self._inbox_callbacks)
@@ -245,6 +301,9 @@ class SimRuntime:
         lock: _thread.LockType | None = None,
         wake: Callable[[], None] | None = None,
         inbox: bool = False,
+        rfds: tuple[int, ...] = (),
+        wfds: tuple[int, ...] = (),
+        every_phase: bool = False,
     ) -> Waiter:
         """Register the calling thread as idle until released; the caller then blocks on ``lock``.
 
@@ -253,7 +312,7 @@ class SimRuntime:
         if lock is None:
             lock = _thread.allocate_lock()
             lock.acquire()
-        w = Waiter(_thread.get_ident(), lock, deadline_ns, wake)
+        w = Waiter(_thread.get_ident(), lock, deadline_ns, wake, rfds=rfds, wfds=wfds, every_phase=every_phase)
         with self._mu:
             if self.closed:
                 w.released = w.timed_out = True
@@ -261,6 +320,9 @@ class SimRuntime:
                 return w
             self._idle[w.ident] = w
             self._by_lock[id(lock)] = w
+            # a thread that waits on the sim clock (a library's worker: DroneKit's writer) is part of the
+            # script from now on: once woken in phase 0, phase 0 ends only after it is idle again
+            self._script_threads[w.ident] = True
             if deadline_ns is not None:
                 self._timed.append(w)
             if inbox:
@@ -344,6 +406,23 @@ class SimRuntime:
             w = self.new_waiter(deadline_ns=deadline, inbox=True)
             w.lock.acquire()
             self.finish_wait(w)
+
+    def pop_delivery(self, port: int) -> Delivery | None:
+        """The oldest delivered packet for ``port``, or None at once (script threads, in phase 0)."""
+        inbox = self.inbox
+        for i, d in enumerate(inbox):
+            if d.port == port:
+                del inbox[i]
+                return d
+        return None
+
+    def has_delivery(self, port: int) -> bool:
+        return any(d.port == port for d in self.inbox)
+
+    def track_current_thread(self) -> None:
+        """The calling thread waits for I/O of the script (a library's reader thread: pymavlink, DroneKit):
+        from now on phase 0 also waits for it to be idle, so what it reads is handled on the sim clock."""
+        self._script_threads[_thread.get_ident()] = True
 
     def queue_packet(self, dst: int, port: int, payload: bytes) -> None:
         """ENQUEUE a packet for the network; sent before this phase's END-TICK-0."""
@@ -434,7 +513,12 @@ class SimRuntime:
         frames: dict[int, FrameType] | None = None
         for t in threading.enumerate():
             ident = t.ident
-            if ident is None or t.name.startswith(INFRA_THREAD_PREFIX) or isinstance(t, threading._DummyThread):
+            if t.name.startswith(INFRA_THREAD_PREFIX) or isinstance(t, threading._DummyThread):
+                continue
+            if ident is None:  # being started (Thread.start waits for it): it runs in this phase, so wait for it
+                busy.append((t, "starting"))
+                if first_only:
+                    break
                 continue
             if ident in self._done_threads or ident in self._idle:
                 continue
@@ -464,6 +548,8 @@ _LIBRARY_ROOTS = tuple(
     }
 )
 _WORKER_CODE = {("thread.py", "_worker")}
+_SERVICE_MODULES = frozenset({"grpc", "mavsdk_grpc", "mavsdk"})
+"""Libraries whose own threads sit outside the simulation (see ``_is_script_thread``)."""
 
 
 def _thread_code_is_script(t: threading.Thread) -> bool:
@@ -479,7 +565,13 @@ def _thread_code_is_script(t: threading.Thread) -> bool:
     filename = getattr(module, "__file__", None) or (code.co_filename if code is not None else "")
     if not filename or not os.path.isabs(filename):
         return True  # unknown origin: be safe, wait for it
-    return not filename.startswith(_LIBRARY_ROOTS)
+    if not filename.startswith(_LIBRARY_ROOTS):
+        return True
+    # A library's thread works for the script (DroneKit's reader and writer, pymavlink's, a timer): it must be
+    # idle for phase 0 to end, from its first moment on — else what it does at start-up lands in whichever
+    # phase the machine's pace gives it. Only service threads of libraries that block in C for the whole run
+    # and reach the script through its gated event loop stay outside (gRPC's poller, mavsdk-grpc's readers).
+    return module_name.split(".", 1)[0] not in _SERVICE_MODULES
 
 
 _current: SimRuntime | None = None

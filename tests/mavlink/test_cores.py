@@ -123,6 +123,16 @@ def test_heartbeat_schedule_wall_period_and_changes() -> None:
     assert not h.due(1_300_000_000, VehicleState(armed=True, mode=FlightMode.TAKEOFF))
 
 
+def test_heartbeat_schedule_one_hertz_of_sim_time_when_the_sim_runs_fast() -> None:
+    h = HeartbeatSchedule()
+    assert h.due(0, VehicleState(t_ns=0))
+    assert not h.due(10_000_000, VehicleState(t_ns=900_000_000))
+    assert h.due(20_000_000, VehicleState(t_ns=1_000_000_000))  # x50: 1 s of sim in 20 ms of wall time
+    assert h.next_due_sim_ns() == 2_000_000_000
+    assert not h.due(30_000_000, VehicleState(t_ns=1_500_000_000))
+    assert h.due(40_000_000, VehicleState(t_ns=2_010_000_000))
+
+
 def test_peers_are_forgotten_after_ten_silent_seconds() -> None:
     link = UdpLink(LinkConfig("api", ("127.0.0.1", 0), ("127.0.0.1", 14540)))
     try:

@@ -4,23 +4,34 @@ from __future__ import annotations
 
 import pytest
 
-from harness.simclock.mavsdk_compat import detect_api, rewrite_url
+from harness.simclock.endpoints import VehicleEndpoints, mavsdk_url
+from harness.simclock.mavsdk_compat import detect_api
+
+EP = VehicleEndpoints(udp_port=14601, tcp_port=15761)
 
 
 @pytest.mark.parametrize(
     ("url", "expected"),
     [
-        ("udpin://0.0.0.0:14540", "udpin://0.0.0.0:14601"),
-        ("udp://:14540", "udp://:14601"),
-        ("udp://", "udp://:14601"),
-        ("udpin://0.0.0.0:14550", "udpin://0.0.0.0:14550"),
-        ("tcpout://127.0.0.1:5760", "tcpout://127.0.0.1:5760"),
-        ("tcp://127.0.0.1:14540", "tcp://127.0.0.1:14601"),
+        ("udpin://0.0.0.0:14540", "udpout://127.0.0.1:14601"),
+        ("udp://:14540", "udpout://127.0.0.1:14601"),
+        ("udp://", "udpout://127.0.0.1:14601"),
+        ("udpin://0.0.0.0:14550", "udpout://127.0.0.1:14601"),
+        ("udpout://127.0.0.1:14580", "udpout://127.0.0.1:14601"),
+        ("udpin://0.0.0.0:14999", "udpin://0.0.0.0:14999"),
+        ("udpout://10.0.0.7:14580", "udpout://10.0.0.7:14580"),
+        ("tcpout://127.0.0.1:5760", "tcpout://127.0.0.1:15761"),
+        ("tcp://localhost:5760", "tcpout://127.0.0.1:15761"),
+        ("tcpout://127.0.0.1:5762", "tcpout://127.0.0.1:5762"),
         ("serial:///dev/ttyUSB0:57600", "serial:///dev/ttyUSB0:57600"),
     ],
 )
-def test_standard_port_goes_to_the_vehicle(url: str, expected: str) -> None:
-    assert rewrite_url(url, 14601) == expected
+def test_script_addresses_go_to_the_vehicle(url: str, expected: str) -> None:
+    assert mavsdk_url(url, EP) == expected
+
+
+def test_without_a_tcp_port_tcp_stays() -> None:
+    assert mavsdk_url("tcpout://127.0.0.1:5760", VehicleEndpoints(14601)) == "tcpout://127.0.0.1:5760"
 
 
 def test_detects_the_api_of_a_script() -> None:

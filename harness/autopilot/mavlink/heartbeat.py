@@ -1,7 +1,9 @@
-"""HEARTBEAT: PX4 identity and custom modes, sent on the wall clock.
+"""HEARTBEAT: PX4 identity and custom modes, on the faster of the sim and the wall clock.
 
 At least once per ``period_ns`` of wall time whatever the simulation does (MAVSDK disconnects after 3 s
-without one, QGC after 3.5 s), and once more right after the armed state or the flight mode changes.
+without one, QGC after 3.5 s), at least once per ``period_ns`` of sim time (scripts on the sim clock —
+DroneKit's 5 s link timeout, a mode printer — see 1 Hz at any speed), and once more right after the armed
+state or the flight mode changes.
 """
 
 from __future__ import annotations
@@ -31,28 +33,41 @@ def heartbeat_message(mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMess
 
 @dataclass(slots=True)
 class HeartbeatSchedule:
-    """Decides when a heartbeat is due (wall clock)."""
+    """Decides when a heartbeat is due: a period of wall time or of sim time (``state.t_ns``) passed."""
 
     period_ns: int = 1_000_000_000
     _last_ns: int | None = None
+    _last_sim_ns: int | None = None
     _last_key: tuple[bool, FlightMode] | None = None
+    by_wall: bool = False
+    """Whether the last heartbeat found due was due only on the wall clock."""
 
     def due(self, now_ns: int, state: VehicleState) -> bool:
         key = (state.armed, state.mode)
-        last = self._last_ns
-        if last is None or key != self._last_key:
-            self._last_ns = now_ns
-        elif now_ns - last >= self.period_ns:  # keeps its phase (1 Hz on the dot, in step with the streams)
-            nxt = last + self.period_ns
-            self._last_ns = nxt if now_ns - nxt < self.period_ns else now_ns
+        last, last_sim, sim = self._last_ns, self._last_sim_ns, state.t_ns
+        period = self.period_ns
+        if last_sim is None or sim - last_sim >= period:
+            # 1 Hz of sim time on a grid of its own (wall-clock sends never shift it: the same seed gives the
+            # same heartbeats at the same sim times)
+            self._last_sim_ns = sim if last_sim is None or sim - last_sim >= 2 * period else last_sim + period
+            self.by_wall = False
+        elif last is None or key != self._last_key:
+            self.by_wall = False  # a change of arming or mode
+        elif now_ns - last >= period:
+            self.by_wall = True  # a second of wall time without one: the sim is slow or paused
         else:
             return False
+        self._last_ns = now_ns
         self._last_key = key
         return True
 
     def next_due_ns(self) -> int:
         """Wall time of the next periodic heartbeat (0: one is due now)."""
         return 0 if self._last_ns is None else self._last_ns + self.period_ns
+
+    def next_due_sim_ns(self) -> int | None:
+        """Sim time of the next periodic heartbeat (when the autopilot's bell must ring)."""
+        return None if self._last_sim_ns is None else self._last_sim_ns + self.period_ns
 
     def force(self) -> None:
         """Send one at the next check (after a command that changes arming or mode)."""

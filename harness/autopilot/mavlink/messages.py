@@ -34,6 +34,8 @@ class Origin:
 class Out:
     msg: MAVLinkMessage
     to: Origin | None = None
+    wall_clock: bool = False
+    """Sent only because wall time passed (the sim is slow or paused): not for peers that live on sim time."""
 
 
 def clamp_int(value: float, lo: int, hi: int, default: int = 0) -> int:

@@ -42,6 +42,7 @@ from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, missi
 from harness.autopilot.mavlink.transport import PortsConfig, UdpLink
 from harness.autopilot.mavlink.version import autopilot_version
 from harness.simclock.clock import real_monotonic_ns, real_time_ns
+from harness.simclock.endpoints import SETTLE_PREFIX
 
 log = logging.getLogger(__name__)
 
@@ -124,6 +125,9 @@ class MavlinkServer:
         self._tap = tap
         self._home_on_first_fix = home_on_first_fix
         self._home_try_ns: int | None = None
+        self._stepping = False
+        self._first_t_ns: int | None = None
+        """True while the autopilot's stepping thread services this server (the bell), at sim time."""
         self.codec = Codec(self.sysid, self.compid, signing, unix_ns)
         mav = self.codec.mav
         self.links = [UdpLink(cfg) for cfg in self.ports.links(vehicle)]
@@ -174,7 +178,7 @@ class MavlinkServer:
         attach = getattr(self.api, "attach_bell", None)
         ring_at = getattr(self.api, "ring_at", None)
         if attach is not None and ring_at is not None:
-            attach(lambda: self.service(self._wall_ns()))
+            attach(self._bell)
             self._ring_at = ring_at
         self.next_wake_ns = 0
 
@@ -222,6 +226,15 @@ class MavlinkServer:
                 self._count("handler_errors")
                 self._log_once(e, "receive")
 
+    def _bell(self) -> None:
+        """The autopilot's stepping thread, at a sim time something is due: sim-rate work happens here."""
+        with self._lock:
+            self._stepping = True
+            try:
+                self._service(self._wall_ns())
+            finally:
+                self._stepping = False
+
     def service(self, now: int) -> None:
         """Everything periodic that is due (telemetry, heartbeat, texts, paced transfers); then plan the next
         wake-up: a wall time for the hub, a sim time for the autopilot's bell (hub or stepping thread)."""
@@ -245,7 +258,7 @@ class MavlinkServer:
             wake = min(wake, now + (_POLL_NS if self._sim_moving else _POLL_PAUSED_NS))
         else:
             wake = min(wake, now + _SAFETY_NS)
-            self._ring_at(self.streams.next_due_sim_ns() or _NEVER)
+            self._ring_at(min(self.streams.next_due_sim_ns() or _NEVER, self.heartbeat.next_due_sim_ns() or _NEVER))
         self.next_wake_ns = wake
 
     def _log_once(self, e: Exception, what: str) -> None:
@@ -265,6 +278,14 @@ class MavlinkServer:
 
     # ------------------------------------------------------------------ receive
     def _on_datagram(self, link: int, data: bytes, addr: tuple[str, int], now: int) -> None:
+        if data.startswith(SETTLE_PREFIX):
+            # a mission's runtime asks whether all it sent before is handled: yes (one socket, in order);
+            # what that caused (a forced heartbeat, a STATUSTEXT, a due message) goes out before the answer
+            self._service(now)
+            while self.params.busy:  # a parameter list it asked for goes out now, not paced on the wall clock
+                self._send_all(self.params.tick(), now)
+            self.links[link].send(data, addr)
+            return
         self._count("datagrams_rx")
         for d in self.codec.decode(data):
             if d.status is FrameStatus.MALFORMED:
@@ -277,8 +298,11 @@ class MavlinkServer:
                 self._count("refused_bad_signature")
             elif d.message is not None:
                 self._count("frames_rx")
-                self.links[link].heard(addr, now)
                 m = d.message
+                if self.links[link].heard(addr, now) and link == 0:
+                    # a new client on the API link (MAVSDK connecting out) hears from us at once, not at the
+                    # next heartbeat: it discovers the vehicle while a starting mission holds the sim clock
+                    self._send(Out(heartbeat_message(self.codec.mav, self.api.state()), Origin(link, addr, 0, 0)), now)
                 if self._tap is not None:
                     self._tap(bytes(m.get_msgbuf()))
                 origin = Origin(link, addr, m.get_srcSystem(), m.get_srcComponent())
@@ -370,19 +394,24 @@ class MavlinkServer:
 
     def _tick(self, now: int) -> None:
         state = self.api.state()
-        if self._home_on_first_fix and state.home is None and self._set_home_at_first_fix(state, now):
+        if self._first_t_ns is None:
+            self._first_t_ns = state.t_ns
+        # decided at sim time: by the stepping thread (the bell), or by the hub when nobody steps the autopilot
+        # (it has not moved since this server started); never by the hub during a long phase of a mission
+        at_sim_time = self._stepping or self._ring_at is None or state.t_ns == self._first_t_ns
+        if self._home_on_first_fix and state.home is None and at_sim_time and self._set_home_at_first_fix(state):
             state = self.api.state()
         self._sim_moving = state.t_ns > self._t_ns
         self._t_ns = max(self._t_ns, state.t_ns)
         mav = self.codec.mav
         outs: list[Out] = []
         if self.heartbeat.due(now, state):
-            outs.append(Out(heartbeat_message(mav, state)))
+            outs.append(Out(heartbeat_message(mav, state), wall_clock=self.heartbeat.by_wall))
         t_ms = self._boot_ms()
-        for msg_id in self.streams.due(now, self._t_ns):
+        for msg_id, by_wall in self.streams.due_by_clock(now, self._t_ns):
             msg = BUILDERS[msg_id](mav, state, t_ms)
             if msg is not None:
-                outs.append(Out(msg))
+                outs.append(Out(msg, wall_clock=by_wall))
         if state.home is not None and state.home != self._home:
             self._home = state.home
             home = BUILDERS[_M.MAVLINK_MSG_ID_HOME_POSITION](mav, state, t_ms)
@@ -404,15 +433,16 @@ class MavlinkServer:
         self._send_all(self.missions.tick(now), now)
         self._mission_refusals(now)
 
-    def _set_home_at_first_fix(self, state: VehicleState, now: int) -> bool:
+    def _set_home_at_first_fix(self, state: VehicleState) -> bool:
         """Adapter: PX4 sets home as soon as the global position is good, before arming; MAVSDK scripts wait
         for ``is_home_position_ok`` before they arm. The flight core sets home only when arming, so this
-        asks it to set home here once GPS and the position estimate are good (retried every second)."""
+        asks it to set home here once GPS and the position estimate are good (retried every second of sim time),
+        at a sim time (the autopilot's bell), so the same seed gives the same home at the same tick."""
         if state.armed or not (state.health.gps_ok and state.health.local_position_ok):
             return False
-        if self._home_try_ns is not None and now - self._home_try_ns < 1_000_000_000:
+        if self._home_try_ns is not None and state.t_ns - self._home_try_ns < 1_000_000_000:
             return False
-        self._home_try_ns = now
+        self._home_try_ns = state.t_ns
         return self.api.set_home(None).ok
 
     def _mission_refusals(self, now: int) -> None:
@@ -445,7 +475,7 @@ class MavlinkServer:
         sent = 0
         if out.to is None:
             for link in self.links:
-                for addr in link.destinations(now):
+                for addr in link.destinations(now, sim_peers=not out.wall_clock):
                     sent += link.send(data, addr)
         else:
             sent += self.links[out.to.link].send(data, out.to.addr)

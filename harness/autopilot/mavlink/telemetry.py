@@ -310,16 +310,23 @@ class StreamScheduler:
         return -1 if s is None else s.interval_ns // 1000
 
     def due(self, wall_ns: int, sim_ns: int) -> list[int]:
-        """The streams due now; each is then counted as sent at ``wall_ns`` and ``sim_ns``.
+        """The streams due now (see :meth:`due_by_clock`)."""
+        return [msg_id for msg_id, _ in self.due_by_clock(wall_ns, sim_ns)]
+
+    def due_by_clock(self, wall_ns: int, sim_ns: int) -> list[tuple[int, bool]]:
+        """The streams due now, each with whether only the wall clock made it due.
 
         A stream keeps its phase on the clock that made it due (the next send is one interval after the
         previous one was due, not after it was served): 10 Hz stays 10 Hz however late the server gets to
         it, and streams whose intervals divide each other fall due together, so one wake-up serves them
-        all. A stream more than one interval behind starts again from now.
+        all. A stream more than one interval behind starts again from now. The sim-time grid is never moved
+        by a send the wall clock made due (the sim is slow or paused), so a seed gives the same messages at
+        the same sim times whatever the machine's pace.
         """
         out = []
         for msg_id, s in self._streams.items():
             last_sim, last_wall, interval = s.last_sim_ns, s.last_wall_ns, s.interval_ns
+            by_wall = False
             if last_wall is None or last_sim is None:
                 s.last_sim_ns, s.last_wall_ns = sim_ns, wall_ns
             elif sim_ns - last_sim >= interval:
@@ -329,10 +336,10 @@ class StreamScheduler:
             elif wall_ns - last_wall >= interval:
                 nxt = last_wall + interval
                 s.last_wall_ns = nxt if wall_ns - nxt < interval else wall_ns
-                s.last_sim_ns = sim_ns
+                by_wall = True
             else:
                 continue
-            out.append(msg_id)
+            out.append((msg_id, by_wall))
         return out
 
     def next_due_wall_ns(self) -> int | None:

@@ -16,12 +16,15 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from harness.errors import ScenarioError
+from harness.simclock.endpoints import LISTEN_HELLO
 
 log = logging.getLogger(__name__)
 
 Address = tuple[str, int]
 
 PEER_TIMEOUT_NS = 10_000_000_000
+_FOREVER = 1 << 62
+"""Last-heard time of a peer that announced itself as a listener: never forgotten for silence."""
 _RECV_SIZE = 65_535
 
 
@@ -37,6 +40,9 @@ class LinkConfig:
 @dataclass(frozen=True, slots=True)
 class PortsConfig:
     """Port plan (DESIGN.md): vehicle ``i`` sends to ``api_port_base + i`` and to ``gcs_port``.
+
+    ``api_port_base = 0``: the API link sends only to the peers that spoke to it (``harness run``: each
+    mission connects out to its own vehicle, and no other run's listener can hear it).
 
     ``api_local_port_base`` / ``gcs_local_port_base``: 0 binds any free port (no collisions between
     parallel runs); otherwise the vehicle binds ``base + i`` (PX4 SITL uses 14580 and 18570), which is what
@@ -65,7 +71,8 @@ class PortsConfig:
         def local(base: int) -> Address:
             return (self.bind_host, base + vehicle if base else 0)
 
-        links = [LinkConfig("api", local(self.api_local_port_base), (self.remote_host, self.api_port_base + vehicle))]
+        api_remote = (self.remote_host, self.api_port_base + vehicle) if self.api_port_base else None
+        links = [LinkConfig("api", local(self.api_local_port_base), api_remote)]
         if self.gcs_port:
             links.append(LinkConfig("gcs", local(self.gcs_local_port_base), (self.remote_host, self.gcs_port)))
         return tuple(links)
@@ -79,6 +86,7 @@ class UdpLink:
         self.name = config.name
         self.peer_timeout_ns = peer_timeout_ns
         self._peers: dict[Address, int] = {}
+        self._sim_peers: set[Address] = set()
         self.send_errors = 0
         self.recv_errors = 0
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -115,19 +123,27 @@ class UdpLink:
                     self.recv_errors += 1
                     log.debug("%s link: receive error %s", self.name, e)
                 continue
+            if data == LISTEN_HELLO:  # a mission's listening socket (pymavlink udpin): it gets what peers get
+                self._peers[(addr[0], addr[1])] = _FOREVER
+                self._sim_peers.add((addr[0], addr[1]))
+                continue
             yield data, (addr[0], addr[1])
 
-    def heard(self, peer: Address, now_ns: int) -> None:
-        """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too."""
-        self._peers[peer] = now_ns
+    def heard(self, peer: Address, now_ns: int) -> bool:
+        """``peer`` sent a valid (and, with signing, correctly signed) frame: telemetry goes there too.
+        True when it is a new peer."""
+        new = peer not in self._peers
+        self._peers[peer] = max(self._peers.get(peer, 0), now_ns)
+        return new
 
-    def destinations(self, now_ns: int) -> list[Address]:
-        """The remote and the live peers (forgets peers silent longer than the timeout)."""
+    def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
+        """The remote and the live peers (forgets peers silent longer than the timeout); without the peers that
+        live on sim time (missions' sockets, which announced themselves) when ``sim_peers`` is False."""
         stale = [a for a, t in self._peers.items() if now_ns - t > self.peer_timeout_ns]
         for a in stale:
             del self._peers[a]
             log.info("%s link: forgot peer %s:%d (silent for over %.0f s)", self.name, *a, self.peer_timeout_ns / 1e9)
-        dests = list(self._peers)
+        dests = list(self._peers) if sim_peers else [a for a in self._peers if a not in self._sim_peers]
         remote = self.config.remote
         if remote is not None and remote not in self._peers:
             dests.append(remote)

@@ -1,0 +1,94 @@
+"""Where a mission's MAVLink goes: the addresses scripts are written for, mapped to their own vehicle.
+
+Scripts are written for one vehicle on a SITL machine: MAVSDK listens on UDP 14540 (PX4 SITL sends
+there), ArduPilot scripts and DroneKit listen on 14550 / 14551 (``sim_vehicle.py``'s outputs) or connect
+to TCP 5760 (SITL's SERIAL0), and some connect out to PX4 SITL's own port 14580. In a run every vehicle has
+its own ports, and the vehicle *listens*: the mission connects out to it, so no other run can hear or
+command it. These pure functions map a script's address to its vehicle's (:class:`VehicleEndpoints`, from the
+environment ``harness run`` gives each mission); anything else is left as it is.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+
+LISTEN_PORTS = frozenset({14540, 14550, 14551})
+"""UDP ports a script listens on for its vehicle (``udpin:0.0.0.0:14540``, ``127.0.0.1:14550``)."""
+CONNECT_UDP_PORTS = frozenset({14580})
+"""UDP ports a script connects out to (PX4 SITL instance 0's MAVLink API port)."""
+CONNECT_TCP_PORTS = frozenset({5760})
+"""TCP ports a script connects to (ArduPilot SITL's SERIAL0)."""
+
+LISTEN_HELLO = b"HARNESS-LISTEN\n"
+"""Datagram a script's redirected listening socket sends its vehicle: 'send me what you send your mission'
+(a script that only listens, like pymavlink's ``udpin:`` before it has sent anything, is heard this way)."""
+
+SETTLE_PREFIX = b"HARNESS-SETTLE "
+"""Datagram a mission's runtime sends its vehicle after the script's MAVLink: the vehicle echoes it once it
+has handled everything that arrived before it (one socket, handled in order), answers included."""
+
+_LOCAL_HOSTS = frozenset({"", "0.0.0.0", "127.0.0.1", "localhost", "::", "::1"})
+_URL = re.compile(r"^(?P<scheme>[a-z]+)://(?P<host>\[[^\]]*\]|[^:/]*)(?::(?P<port>\d+))?(?P<rest>.*)$")
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleEndpoints:
+    """The vehicle's own MAVLink ports on this machine (loopback)."""
+
+    udp_port: int
+    tcp_port: int | None = None
+    host: str = "127.0.0.1"
+
+    @classmethod
+    def from_env(cls, vehicle: int) -> VehicleEndpoints | None:
+        """From ``HARNESS_MAVLINK_PORT`` / ``HARNESS_MAVLINK_TCP_PORT`` (None outside a run)."""
+        udp = os.environ.get("HARNESS_MAVLINK_PORT")
+        if not udp:
+            return None
+        tcp = os.environ.get("HARNESS_MAVLINK_TCP_PORT")
+        return cls(int(udp), int(tcp) if tcp else None)
+
+
+def is_local(host: object) -> bool:
+    return isinstance(host, str) and host in _LOCAL_HOSTS
+
+
+def udp_listen_redirected(host: object, port: int) -> bool:
+    """Whether binding ``(host, port)`` is a script listening for its vehicle."""
+    return port in LISTEN_PORTS and is_local(host)
+
+
+def udp_destination(host: object, port: int, ep: VehicleEndpoints) -> tuple[str, int] | None:
+    """The vehicle's address for a datagram a script sends to ``(host, port)``; None: not the vehicle."""
+    if is_local(host) and (port in CONNECT_UDP_PORTS or port in LISTEN_PORTS):
+        return (ep.host, ep.udp_port)
+    return None
+
+
+def tcp_destination(host: object, port: int, ep: VehicleEndpoints) -> tuple[str, int] | None:
+    """The vehicle's address for a TCP connection to ``(host, port)``; None: not the vehicle."""
+    if ep.tcp_port is not None and is_local(host) and port in CONNECT_TCP_PORTS:
+        return (ep.host, ep.tcp_port)
+    return None
+
+
+def mavsdk_url(url: str, ep: VehicleEndpoints) -> str:
+    """A MAVSDK connection URL pointed at the vehicle (``udpin://0.0.0.0:14540`` → ``udpout://127.0.0.1:P``).
+
+    The listening forms become ``udpout`` to the vehicle's port: MAVSDK then sends its heartbeat there and the
+    vehicle answers it (and only it). Other URLs (serial, other hosts and ports) are left as they are.
+    """
+    m = _URL.match(url)
+    if m is None:
+        return url
+    scheme, host, port_text = m.group("scheme"), m.group("host").strip("[]"), m.group("port")
+    port = int(port_text) if port_text else None
+    if scheme in ("udp", "udpin") and (port is None or udp_listen_redirected(host, port)):
+        return f"udpout://{ep.host}:{ep.udp_port}"
+    if scheme == "udpout" and port is not None and udp_destination(host, port, ep):
+        return f"udpout://{ep.host}:{ep.udp_port}"
+    if scheme in ("tcp", "tcpout") and port is not None and tcp_destination(host, port, ep):
+        return f"tcpout://{ep.host}:{ep.tcp_port}"
+    return url

@@ -1,0 +1,263 @@
+"""``socket.socket`` in a mission process: blocking calls wait on the sim clock, MAVLink goes to the vehicle.
+
+Installed as ``socket.socket`` for the sockets a script creates (``harness mission`` does it, after its own
+connection to the channel exists). The kernel socket underneath is always non-blocking; what the script set
+(``settimeout``, ``setblocking``) is kept and honoured, as the socket docs say — ``settimeout(0)`` and
+``setblocking(False)`` raise ``BlockingIOError`` at once, a timeout is sim time and raises ``TimeoutError``,
+and ``None`` blocks (idle for the sim clock) until data comes.
+
+MAVLink addresses are mapped to the mission's own vehicle (:mod:`harness.simclock.endpoints`):
+
+- a UDP socket bound to a port scripts listen on (14540, 14550, 14551 on a local or wildcard address) is
+  bound to a free loopback port instead and announces itself to its vehicle (one ``LISTEN_HELLO``
+  datagram), which then sends it everything it sends its mission — pymavlink's ``udpin:0.0.0.0:14540``,
+  DroneKit's ``connect("127.0.0.1:14550")``;
+- ``sendto`` / ``connect`` to a local 14540/14550/14551/14580 go to the vehicle's UDP port, and a TCP
+  connection to local port 5760 (ArduPilot SITL's SERIAL0) to the vehicle's TCP port.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import socket as _socket
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from harness.simclock import iowait
+from harness.simclock.endpoints import (
+    LISTEN_HELLO,
+    SETTLE_PREFIX,
+    VehicleEndpoints,
+    tcp_destination,
+    udp_destination,
+    udp_listen_redirected,
+)
+from harness.simclock.runtime import SimRuntime
+
+_original_socket = _socket.socket
+_T = TypeVar("_T")
+
+_rt: SimRuntime | None = None
+_ep: VehicleEndpoints | None = None
+
+
+class SimSocket(_original_socket):
+    """A socket whose blocking calls are sim-time waits and whose MAVLink addresses reach the vehicle."""
+
+    def __init__(self, family: Any = -1, type: Any = -1, proto: int = -1, fileno: int | None = None) -> None:
+        super().__init__(family, type, proto, fileno)
+        self._user_timeout: float | None = super().gettimeout()
+        if _rt is not None:
+            super().settimeout(0.0)  # the kernel side never blocks; waits are the sim clock's
+
+    # -- timeouts ------------------------------------------------------------------------------
+
+    def _timeout(self) -> float | None:
+        return self._user_timeout
+
+    def settimeout(self, value: float | None) -> None:
+        if value is not None and value < 0:
+            raise ValueError("Timeout value out of range")
+        self._user_timeout = None if value is None else float(value)
+        super().settimeout(0.0 if _rt is not None else value)
+
+    def gettimeout(self) -> float | None:
+        return self._timeout()
+
+    def setblocking(self, flag: bool) -> None:
+        self.settimeout(None if flag else 0.0)
+
+    def _blocking(self, op: Callable[[], _T], write: bool = False) -> _T:
+        """Run a non-blocking ``op`` until it succeeds, waiting on the sim clock in between."""
+        timeout = self._timeout()
+        rt = _rt
+        if rt is None or timeout == 0.0:
+            return op()
+        if not rt._tracked():  # a harness thread: the original blocking behaviour on the wall clock
+            while True:
+                try:
+                    return op()
+                except (BlockingIOError, InterruptedError):
+                    r, w, _ = iowait.real_select([] if write else [self], [self] if write else [], [], timeout)
+                    if not (r or w):
+                        raise TimeoutError("timed out") from None
+        deadline = iowait.deadline_of(rt, timeout)
+        while True:
+            try:
+                return op()
+            except (BlockingIOError, InterruptedError):
+                pass
+            ready = self._sim_ready()
+            if ready:
+                continue
+            if rt.closed or (deadline is not None and rt.now_ns() >= deadline):
+                raise TimeoutError("timed out")
+            fd = self.fileno()
+            iowait.wait(rt, [] if write else [fd], [fd] if write else [], deadline, inbox=self._waits_on_inbox())
+
+    def _sim_ready(self) -> bool:
+        """Data the runtime holds for this socket (radio packets); see ``harness.net.udp``."""
+        return False
+
+    def _waits_on_inbox(self) -> bool:
+        return False
+
+    # -- MAVLink addresses -----------------------------------------------------------------------
+
+    def _is_inet_dgram(self) -> bool:
+        return self.family == _socket.AF_INET and self.type == _socket.SOCK_DGRAM
+
+    _mavlink = False
+
+    def _mark_mavlink(self) -> None:
+        """This socket talks to the vehicle: its waits follow every phase, its sends are settled."""
+        self._mavlink = True
+        if _rt is not None:
+            _rt.mavlink_fds.add(self.fileno())
+
+    def _sent(self) -> None:
+        if self._mavlink and _rt is not None:
+            _rt.mavlink_sent += 1
+            if _rt._tracked():
+                _rt.track_current_thread()  # a library's writer thread (DroneKit's): phase 0 waits for it too
+
+    def close(self) -> None:
+        if self._mavlink and _rt is not None:
+            _rt.mavlink_fds.discard(self.fileno())
+        super().close()
+
+    def _map_udp(self, address: Any) -> Any:
+        if _ep is not None and self._is_inet_dgram() and isinstance(address, tuple):
+            dst = udp_destination(address[0], int(address[1]), _ep)
+            if dst is not None:
+                self._mark_mavlink()
+                return dst
+        return address
+
+    def bind(self, address: Any) -> None:
+        ep = _ep
+        if (
+            ep is not None
+            and self._is_inet_dgram()
+            and isinstance(address, tuple)
+            and udp_listen_redirected(address[0], int(address[1]))
+        ):
+            super().bind(("127.0.0.1", 0))
+            super().sendto(LISTEN_HELLO, (ep.host, ep.udp_port))
+            self._mark_mavlink()
+            return
+        super().bind(address)
+
+    def connect(self, address: Any) -> None:
+        ep = _ep
+        if ep is not None and isinstance(address, tuple) and self.family == _socket.AF_INET:
+            if self.type == _socket.SOCK_STREAM:
+                dst = tcp_destination(address[0], int(address[1]), ep)
+                if dst is not None:
+                    address = dst
+                    self._mark_mavlink()
+            else:
+                address = self._map_udp(address)
+        if self.type != _socket.SOCK_STREAM or _rt is None or self._timeout() == 0.0:
+            super().connect(address)
+            return
+        err = super().connect_ex(address)
+        if err in (0, errno.EISCONN):
+            return
+        if err not in (errno.EINPROGRESS, errno.EALREADY, errno.EWOULDBLOCK, errno.EAGAIN):
+            raise OSError(err, os.strerror(err))
+
+        def check() -> None:
+            e = self.getsockopt(_socket.SOL_SOCKET, _socket.SO_ERROR)
+            if e == 0:
+                if not iowait.real_select([], [self], [], 0)[1]:
+                    raise BlockingIOError
+                return
+            raise OSError(e, os.strerror(e))
+
+        self._blocking(check, write=True)
+
+    def connect_ex(self, address: Any) -> int:
+        try:
+            self.connect(address)
+        except OSError as e:
+            return e.errno or errno.EIO
+        return 0
+
+    # -- blocking calls ---------------------------------------------------------------------------
+
+    def recv(self, bufsize: int, flags: int = 0) -> bytes:
+        return self._blocking(lambda: _original_socket.recv(self, bufsize, flags))
+
+    def recvfrom(self, bufsize: int, flags: int = 0) -> tuple[bytes, Any]:
+        return self._blocking(lambda: _original_socket.recvfrom(self, bufsize, flags))
+
+    def recv_into(self, buffer: Any, nbytes: int = 0, flags: int = 0) -> int:
+        return self._blocking(lambda: _original_socket.recv_into(self, buffer, nbytes, flags))
+
+    def recvfrom_into(self, buffer: Any, nbytes: int = 0, flags: int = 0) -> tuple[int, Any]:
+        return self._blocking(lambda: _original_socket.recvfrom_into(self, buffer, nbytes, flags))
+
+    def accept(self) -> tuple[Any, Any]:
+        return self._blocking(lambda: _original_socket.accept(self))
+
+    def send(self, data: Any, flags: int = 0) -> int:
+        n = self._blocking(lambda: _original_socket.send(self, data, flags), write=True)
+        self._sent()
+        return n
+
+    def sendall(self, data: Any, flags: int = 0) -> None:
+        view = memoryview(data).cast("B")
+        while view:
+            n = self.send(view, flags)
+            view = view[n:]
+
+    def sendto(self, data: Any, *args: Any) -> int:
+        *flags, address = args
+        address = self._map_udp(address)
+        raw_sendto: Any = _original_socket.sendto
+        n = self._blocking(lambda: int(raw_sendto(self, data, *flags, address)), write=True)
+        self._sent()
+        return n
+
+
+class _Settler:
+    """Asks the vehicle to confirm that it has handled the script's MAVLink (``SimRuntime.settle_mavlink``)."""
+
+    def __init__(self, ep: VehicleEndpoints) -> None:
+        self._dst = (ep.host, ep.udp_port)
+        self._sock = _original_socket(_socket.AF_INET, _socket.SOCK_DGRAM)
+        self._sock.bind(("127.0.0.1", 0))
+        self._sock.setblocking(False)
+        self._seq = 0
+
+    def __call__(self, timeout_s: float = 2.0) -> bool:
+        self._seq += 1
+        token = SETTLE_PREFIX + str(self._seq).encode()
+        self._sock.sendto(token, self._dst)
+        while True:
+            r, _, _ = iowait.real_select([self._sock], [], [], timeout_s)
+            if not r:
+                return False
+            try:
+                data = self._sock.recv(64)
+            except OSError:
+                continue
+            if data == token:
+                return True
+
+
+def install(rt: SimRuntime, ep: VehicleEndpoints | None, cls: type[SimSocket] = SimSocket) -> None:
+    """Sockets created from now on are ``cls`` (mission processes only)."""
+    global _rt, _ep
+    _rt, _ep = rt, ep
+    if ep is not None:
+        rt.settle_mavlink = _Settler(ep)
+    _socket.socket = cls  # type: ignore[misc]
+
+
+def uninstall() -> None:
+    global _rt, _ep
+    _rt = _ep = None
+    _socket.socket = _original_socket  # type: ignore[misc]
