@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import importlib.util
 import os
 import shutil
 import signal
@@ -40,7 +41,13 @@ def require_rerun(what: str) -> None:
 
 
 def rerun_executable() -> str:
-    """The ``rerun`` viewer binary of the environment ``harness`` runs in (the wheel ships it)."""
+    """The ``rerun`` viewer binary of the environment ``harness`` runs in (the wheel ships it). The binary
+    itself, not the ``bin/rerun`` Python wrapper, so that killing it (and its death with us) leaves no child."""
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        binary = Path(spec.origin).parent / "rerun"
+        if binary.is_file():
+            return str(binary)
     here = Path(sys.executable).parent / "rerun"
     if here.is_file():
         return str(here)
