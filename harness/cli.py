@@ -270,8 +270,15 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     _terminate_as_interrupt()
     # hand-run MAVSDK scripts listen on 14540 + i (udpin://0.0.0.0:14540 reaches vehicle 0)
     plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540)
+    natives: list[NativeViewer] = []
+    if a.view:
+        plan, natives = _live_view(a, plan)
     print(f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time; Ctrl-C stops.", flush=True)
-    result = Launcher(plan).run()
+    try:
+        result = Launcher(plan).run()
+    finally:
+        for viewer in natives:
+            viewer.stop()
     return 0 if result.status in ("ok", "interrupted") else 1
 
 

@@ -98,13 +98,13 @@ class _Buffer:
 
     def add(self, t_s: float, vehicle: int, sample: tuple[Any, ...]) -> None:
         if self._row_t is not None and t_s != self._row_t:
-            self._close_row()
+            self.close_row()
         self._row_t = t_s
         self._row[vehicle] = sample
         if len(self._row) == self.n:
-            self._close_row()
+            self.close_row()
 
-    def _close_row(self) -> None:
+    def close_row(self) -> None:
         if self._row_t is None:
             return
         if len(self._row) == self.n:  # a partial row (never in the launcher) is dropped, not padded
@@ -218,7 +218,7 @@ class RrdRecorder:
             return
         self.closed = True
         try:
-            self._buf._close_row()
+            self._buf.close_row()
             self._send_batch()
             self._rec.flush()
         finally:
