@@ -83,6 +83,11 @@ class WebViewer:
         return self.url(connect_to)
 
 
+def _viewer_env() -> dict[str, str]:
+    """The viewer logs warnings and errors only (its info lines would drown the run's output)."""
+    return dict(os.environ, RUST_LOG=os.environ.get("RUST_LOG", "warn"))
+
+
 def _die_with_parent() -> None:
     os.setpgid(0, 0)
     try:
@@ -107,7 +112,9 @@ class NativeViewer:
         self.proc: subprocess.Popen[bytes] | None = None
 
     def start(self) -> NativeViewer:
-        self.proc = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent)
+        self.proc = subprocess.Popen(
+            self.argv, stdin=subprocess.DEVNULL, env=_viewer_env(), preexec_fn=_die_with_parent
+        )
         return self
 
     def wait(self) -> int:
@@ -136,6 +143,7 @@ def serve_file_web(rrd: Path, web_port: int | None = None) -> tuple[subprocess.P
         [rerun_executable(), "--serve-web", "--web-viewer-port", str(port), "--port", str(grpc_port), str(rrd)],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
+        env=_viewer_env(),
         preexec_fn=_die_with_parent,
     )
     connect = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
