@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
+import threading
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -62,21 +63,69 @@ class WorldSink(Protocol):
     def close(self) -> None: ...
 
 
-class WorldTee:
-    """``world.mcap`` always; the 3D view (``world.rrd``, live viewers) when there is one."""
+class _Opening:
+    """Opens the view on a thread: importing Rerun (pyarrow included) takes ~0.5 s of CPU, which a run
+    spends while its processes start instead of before."""
 
-    def __init__(self, mcap: WorldRecorder, view: RrdRecorder | None) -> None:
+    def __init__(self, open_view: Callable[[], RrdRecorder | None]) -> None:
+        self.view: RrdRecorder | None = None
+        self._open = open_view
+        self._thread = threading.Thread(target=self._run, name="open-world.rrd", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        self.view = self._open()
+
+    def done(self) -> bool:
+        return not self._thread.is_alive()
+
+    def wait(self) -> RrdRecorder | None:
+        self._thread.join()
+        return self.view
+
+
+class WorldTee:
+    """``world.mcap`` always; the 3D view (``world.rrd``, live viewers) when there is one.
+
+    While the view is still being opened (``opening``), its calls wait in a backlog and are replayed in
+    order once it is open, so ``world.rrd`` holds the whole run.
+    """
+
+    def __init__(self, mcap: WorldRecorder, view: RrdRecorder | None, opening: _Opening | None = None) -> None:
         self.mcap = mcap
         self.view = view
+        self._opening = opening
+        self._backlog: list[Callable[[RrdRecorder], None]] = []
 
     def _guard(self, call: Callable[[RrdRecorder], None]) -> None:
+        if self._opening is not None:
+            if not self._opening.done():
+                self._backlog.append(call)
+                return
+            self._opened(self._opening.wait())
         if self.view is None:
             return
         try:
             call(self.view)
         except Exception:
-            log.warning("the 3D view failed and is switched off for the rest of the run", exc_info=True)
-            view, self.view = self.view, None
+            self._fail()
+
+    def _opened(self, view: RrdRecorder | None) -> None:
+        self._opening = None
+        self.view = view
+        backlog, self._backlog = self._backlog, []
+        for call in backlog:
+            if self.view is None:
+                return
+            try:
+                call(self.view)
+            except Exception:
+                self._fail()
+
+    def _fail(self) -> None:
+        log.warning("the 3D view failed and is switched off for the rest of the run", exc_info=True)
+        view, self.view = self.view, None
+        if view is not None:
             try:
                 view.close()
             except Exception:
@@ -98,12 +147,12 @@ class WorldTee:
     ) -> None:
         args = (t_ns, vehicle, pos_ned_m, quat_wxyz, vel_ned_m_s, lat_deg, lon_deg, alt_amsl_m, motors, on_ground)
         self.mcap.vehicle(*args, crashed)
-        if self.view is not None:
+        if self.view is not None or self._opening is not None:
             self._guard(lambda v: v.vehicle(*args, crashed))
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
         self.mcap.tick(t_ns, tick, wall_s, tick_wall_us)
-        if self.view is not None:
+        if self.view is not None or self._opening is not None:
             self._guard(lambda v: v.tick(t_ns, tick, wall_s, tick_wall_us))
 
     def event(self, t_ns: int, kind: str, detail: dict[str, Any]) -> None:
@@ -121,6 +170,8 @@ class WorldTee:
         try:
             self.mcap.close()
         finally:
+            if self._opening is not None:
+                self._opened(self._opening.wait())
             self._guard(lambda v: v.close())
             self.view = None
 
@@ -136,14 +187,19 @@ def open_world(
     """``out/world.mcap``, plus ``out/world.rrd`` when Rerun is installed (served live on ``serve_port``).
 
     The environment variable ``HARNESS_RRD=0`` leaves ``world.rrd`` out (unless a live view is asked for).
+    A live view is open when this returns; a file-only one opens on a thread (see ``_Opening``).
     """
     mcap = WorldRecorder(out / "world.mcap", epoch_ns, n_vehicles)
-    view: RrdRecorder | None = None
-    if rrd_wanted(serve_port):
-        from harness.record.rrd import RrdRecorder
+    if not rrd_wanted(serve_port):
+        if serve_port is not None:
+            log.warning("no live view: %s", INSTALL_HINT)
+        return WorldTee(mcap, None)
 
+    def open_view() -> RrdRecorder | None:
         try:
-            view = RrdRecorder(
+            from harness.record.rrd import RrdRecorder
+
+            return RrdRecorder(
                 out / "world.rrd",
                 n_vehicles,
                 origin,
@@ -153,6 +209,8 @@ def open_world(
             )
         except Exception:
             log.warning("world.rrd (the 3D view) could not be opened; the run goes on without it", exc_info=True)
-    elif serve_port is not None:
-        log.warning("no live view: %s", INSTALL_HINT)
-    return WorldTee(mcap, view)
+            return None
+
+    if serve_port is not None:
+        return WorldTee(mcap, open_view())
+    return WorldTee(mcap, None, _Opening(open_view))
