@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
+import uuid
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -153,7 +154,10 @@ class RrdRecorder:
         self.events_path = events_path
         self.closed = False
         self.grpc_url: str | None = None
-        self._rec = rr.RecordingStream(application_id, recording_id=path.parent.name or "run")
+        # a fresh id per run: two recordings opened in one viewer must not merge into one
+        self._rec = rr.RecordingStream(
+            application_id, recording_id=f"{path.parent.name or 'run'}-{uuid.uuid4().hex[:8]}"
+        )
         sinks: list[Any] = [rr.FileSink(str(path))]
         if serve_port is not None:
             sinks.append(rr.GrpcServerSink("127.0.0.1", serve_port, server_memory_limit="512MiB"))
