@@ -11,11 +11,27 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
+import msgspec
+
 Pair = tuple[int, int]
 
 
 def pair_of(a: int, b: int) -> Pair:
     return (a, b) if a <= b else (b, a)
+
+
+class NetEvent(msgspec.Struct):
+    """The fields of a ``network-events.jsonl`` line that the view uses."""
+
+    t_s: float
+    kind: str
+    src: int
+    dst: int
+    cause: str = ""
+
+
+_decode_many = msgspec.json.Decoder(list[NetEvent]).decode
+_decode_one = msgspec.json.Decoder(NetEvent).decode
 
 
 @dataclass(frozen=True)
@@ -48,18 +64,37 @@ class LinkTracker:
     _new_drops: list[Drop] = field(default_factory=list)
 
     def add(self, event: dict[str, object]) -> None:
-        """One line of ``network-events.jsonl``; anything that is not a delivery or drop between two vehicles
-        is ignored (a broadcast drop with no receiver has ``dst`` -1)."""
+        """One event as a dict (a decoded line of ``network-events.jsonl``)."""
         kind = event.get("kind")
         src, dst, t = event.get("src"), event.get("dst"), event.get("t_s")
-        if kind not in ("deliver", "drop") or not isinstance(src, int) or not isinstance(dst, int):
+        if isinstance(kind, str) and isinstance(src, int) and isinstance(dst, int) and isinstance(t, int | float):
+            self._add(float(t), kind, src, dst, str(event.get("cause", "")))
+
+    def add_lines(self, lines: list[bytes]) -> None:
+        """Complete lines of ``network-events.jsonl``, decoded in one go (a malformed line is skipped)."""
+        if not lines:
             return
-        if not isinstance(t, int | float) or src < 0 or dst < 0 or src == dst:
+        try:
+            events = _decode_many(b"[" + b",".join(lines) + b"]")
+        except msgspec.DecodeError:
+            events = []
+            for line in lines:
+                try:
+                    events.append(_decode_one(line))
+                except msgspec.DecodeError:
+                    continue
+        for e in events:
+            self._add(e.t_s, e.kind, e.src, e.dst, e.cause)
+
+    def _add(self, t_s: float, kind: str, src: int, dst: int, cause: str) -> None:
+        """Anything but a delivery or drop between two vehicles is ignored (a broadcast drop with no receiver
+        has ``dst`` -1)."""
+        if kind not in ("deliver", "drop") or src < 0 or dst < 0 or src == dst:
             return
         ok = kind == "deliver"
-        self._events.setdefault(pair_of(src, dst), deque()).append((float(t), ok))
+        self._events.setdefault(pair_of(src, dst), deque()).append((t_s, ok))
         if not ok:
-            self._new_drops.append(Drop(float(t), src, dst, str(event.get("cause", ""))))
+            self._new_drops.append(Drop(t_s, src, dst, cause))
 
     def quality(self, now_s: float) -> list[LinkQuality]:
         """Every pair with an attempt in ``(now_s - window_s, now_s]``, sorted by pair."""

@@ -36,7 +36,6 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import msgspec
 import numpy as np
 
 from harness.record.links import LinkTracker, ratio_color
@@ -175,7 +174,6 @@ class RrdRecorder:
         self._links = LinkTracker()
         self._events_file: Any = None
         self._events_rest = b""
-        self._decode = msgspec.json.Decoder().decode
         self._static()
 
     # -- the WorldSink interface --------------------------------------------------------------------------
@@ -474,12 +472,7 @@ class RrdRecorder:
         data = self._events_rest + self._events_file.read()
         lines = data.split(b"\n")
         self._events_rest = lines.pop()  # an incomplete last line waits for the next batch
-        for line in lines:
-            if line:
-                try:
-                    self._links.add(self._decode(line))
-                except msgspec.DecodeError:
-                    continue
+        self._links.add_lines([line for line in lines if line])
 
     def _view_step(self, t_s: float, pos: list[tuple[float, float, float]]) -> None:
         rr = self._rr

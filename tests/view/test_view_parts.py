@@ -75,3 +75,16 @@ def test_the_native_viewer_without_a_display_points_to_the_web_viewer(
     assert cli.main(["view", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "needs a display" in err and "harness view RUNDIR --web" in err
+
+
+def test_event_lines_are_decoded_in_one_go_and_a_bad_line_is_skipped() -> None:
+    lt = LinkTracker(window_s=2.0)
+    good = [
+        b'{"t_s": 0.5, "kind": "deliver", "src": 0, "dst": 1, "rssi_dbm": -70.1}',
+        b'{"t_s": 0.6, "kind": "drop", "src": 1, "dst": 0, "cause": "collision"}',
+    ]
+    lt.add_lines(good)
+    lt.add_lines([*good, b'{"t_s": 0.7, "kind": "deliv', b'{"t_s": 0.8, "kind": "drop", "src": 0, "dst": -1}'])
+    (q,) = lt.quality(1.0)
+    assert (q.pair, q.delivered, q.dropped) == ((0, 1), 2, 2)
+    assert [d.cause for d in lt.pop_drops(1.0)] == ["collision", "collision"]
