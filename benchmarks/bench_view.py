@@ -52,13 +52,44 @@ def feed(sink: RrdRecorder | WorldRecorder, n: int, sim_s: float) -> float:
     return time.process_time() - cpu0
 
 
+def links_cpu(n: int, sim_s: float, beacon_hz: float = 10.0) -> float:
+    """CPU seconds per sim second to read the network events of ``n`` vehicles each broadcasting at
+    ``beacon_hz`` to all others (what the view reads from ``network-events.jsonl``), as it does: a batch of
+    lines every 0.5 s, the links' state twice a second."""
+    import json
+
+    from harness.record.links import LinkTracker
+
+    tracker = LinkTracker()
+    per_batch = int(n * (n - 1) * beacon_hz * 0.5)
+    cpu = 0.0
+    for b in range(int(sim_s * 2)):
+        t0 = 0.5 * b
+        lines = [
+            json.dumps(
+                {"t_s": t0 + 0.5 * k / per_batch, "kind": "deliver" if k % 9 else "drop", "src": k % n}
+                | {"dst": (k // n) % n, "rssi_dbm": -71.5, "cause": "snr"}
+            ).encode()
+            for k in range(per_batch)
+        ]
+        c = time.process_time()
+        tracker.add_lines(lines)
+        tracker.quality(t0 + 0.5)
+        tracker.pop_drops(t0 + 0.5)
+        cpu += time.process_time() - c
+    return cpu / sim_s
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("sizes", nargs="*", type=int, default=[1, 10, 50])
     ap.add_argument("--sim", type=float, default=60.0, help="seconds of sim time per size")
     ap.add_argument("--serve", action="store_true", help="also serve the live stream (as --view does)")
     a = ap.parse_args()
-    print(f"{'vehicles':>8} {'mcap CPU s/sim s':>17} {'rrd CPU s/sim s':>16} {'rrd MB/sim min':>15}")
+    print(
+        f"{'vehicles':>8} {'mcap CPU s/sim s':>17} {'rrd CPU s/sim s':>16} {'rrd MB/sim min':>15} "
+        f"{'+ radio links CPU s/sim s (10 Hz beacons)':>42}"
+    )
     for n in a.sizes:
         with tempfile.TemporaryDirectory() as d:
             out = Path(d)
@@ -72,7 +103,8 @@ def main() -> int:
             )
             rrd = feed(rrd_sink, n, a.sim)
             size = (out / "world.rrd").stat().st_size / 1e6 * 60.0 / a.sim
-            print(f"{n:>8} {mcap / a.sim:>17.4f} {rrd / a.sim:>16.4f} {size:>15.1f}", flush=True)
+            links = links_cpu(n, min(a.sim, 20.0))
+            print(f"{n:>8} {mcap / a.sim:>17.4f} {rrd / a.sim:>16.4f} {size:>15.1f} {links:>42.4f}", flush=True)
     return 0
 
 

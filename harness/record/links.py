@@ -8,6 +8,7 @@ since it was last asked.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -56,11 +57,26 @@ class LinkQuality:
 
 
 @dataclass
+class _PairCounts:
+    """Deliveries and drops of one pair in time buckets (oldest first), with running totals."""
+
+    buckets: deque[list[int]] = field(default_factory=deque)
+    """[bucket index, delivered, dropped]"""
+    delivered: int = 0
+    dropped: int = 0
+
+
+@dataclass
 class LinkTracker:
-    """Sliding-window delivery ratio per pair. Broadcast packets count once per receiver, as the events do."""
+    """Sliding-window delivery ratio per pair. Broadcast packets count once per receiver, as the events do.
+
+    Events are counted in ``bucket_s`` buckets with running totals, so asking costs per pair, not per event
+    (at 50 vehicles beaconing at 10 Hz that is 24,500 events per sim second).
+    """
 
     window_s: float = 2.0
-    _events: dict[Pair, deque[tuple[float, bool]]] = field(default_factory=dict)
+    bucket_s: float = 0.1
+    _pairs: dict[Pair, _PairCounts] = field(default_factory=dict)
     _new_drops: list[Drop] = field(default_factory=list)
 
     def add(self, event: dict[str, object]) -> None:
@@ -92,20 +108,38 @@ class LinkTracker:
         if kind not in ("deliver", "drop") or src < 0 or dst < 0 or src == dst:
             return
         ok = kind == "deliver"
-        self._events.setdefault(pair_of(src, dst), deque()).append((t_s, ok))
-        if not ok:
+        pc = self._pairs.get(pair_of(src, dst))
+        if pc is None:
+            pc = self._pairs[pair_of(src, dst)] = _PairCounts()
+        idx = math.floor(t_s / self.bucket_s)
+        if not pc.buckets or pc.buckets[-1][0] != idx:
+            pc.buckets.append([idx, 0, 0])
+        bucket = pc.buckets[-1]
+        if ok:
+            bucket[1] += 1
+            pc.delivered += 1
+        else:
+            bucket[2] += 1
+            pc.dropped += 1
             self._new_drops.append(Drop(t_s, src, dst, cause))
 
     def quality(self, now_s: float) -> list[LinkQuality]:
         """Every pair with an attempt in ``(now_s - window_s, now_s]``, sorted by pair."""
         out = []
-        start = now_s - self.window_s
-        for pair in sorted(self._events):
-            q = self._events[pair]
-            while q and q[0][0] <= start:
-                q.popleft()
-            delivered = sum(1 for t, ok in q if ok and t <= now_s)
-            dropped = sum(1 for t, ok in q if not ok and t <= now_s)
+        lo = math.floor((now_s - self.window_s) / self.bucket_s)
+        hi = math.floor(now_s / self.bucket_s)
+        for pair in sorted(self._pairs):
+            pc = self._pairs[pair]
+            while pc.buckets and pc.buckets[0][0] <= lo:  # left the window for good
+                _, d, x = pc.buckets.popleft()
+                pc.delivered -= d
+                pc.dropped -= x
+            delivered, dropped = pc.delivered, pc.dropped
+            for idx, d, x in reversed(pc.buckets):  # read ahead of now_s: not counted yet
+                if idx <= hi:
+                    break
+                delivered -= d
+                dropped -= x
             if delivered or dropped:
                 out.append(LinkQuality(pair, delivered, dropped))
         return out
