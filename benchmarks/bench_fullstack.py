@@ -130,7 +130,7 @@ VIEWS = ("off", "file", "web")
 installed), web (``--view web``: world.rrd and the live stream served, with no viewer connected)."""
 
 
-def run(vehicles: int, hover_s: float, view: str = "file") -> Result:
+def run(vehicles: int, hover_s: float, view: str = "file", speed: str = "max") -> Result:
     out = Path(tempfile.mkdtemp(prefix=f"bench-fullstack-{vehicles}-"))
     cmd = [
         sys.executable,
@@ -146,6 +146,8 @@ def run(vehicles: int, hover_s: float, view: str = "file") -> Result:
         "--out",
         str(out),
         *(["--view", "web"] if view == "web" else []),
+        "--speed",
+        speed,
         "--",
         str(hover_s),
         str(BEACON_HZ),
@@ -180,6 +182,12 @@ def main() -> int:
         help="comma-separated 3D-view settings to compare, runs interleaved: off (no world.rrd), file (world.rrd, "
         "the default), web (--view web, no viewer connected); e.g. --views off,web",
     )
+    ap.add_argument(
+        "--speed",
+        default="max",
+        help="pace the runs (e.g. 1): CPU per process class then shows each setting's work without the "
+        "contention of a run as fast as possible",
+    )
     a = ap.parse_args()
     views = a.views.split(",")
     if any(v not in VIEWS for v in views):
@@ -199,7 +207,7 @@ def main() -> int:
         by_view: dict[str, list[Result]] = {v: [] for v in views}
         for _ in range(a.repeat):  # interleaved, so a change in the machine's load hits every setting alike
             for v in views:
-                by_view[v].append(run(n, a.hover, v))
+                by_view[v].append(run(n, a.hover, v, a.speed))
         for v in views:
             report(v, n, sorted(by_view[v], key=lambda x: x.rtf), a.repeat)
     return 0
