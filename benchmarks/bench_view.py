@@ -1,6 +1,7 @@
 """The 3D view's own cost: CPU seconds (all threads of this process, Rerun's encoders included) that
 recording ``world.rrd`` adds per second of sim time, fed exactly as the launcher feeds it (every vehicle at
-50 Hz, tick timing at 50 Hz), next to what ``world.mcap`` costs. Independent of the machine's load, unlike
+50 Hz, tick timing at 50 Hz) and batched as in a run that is not faster than real time (the most batches per
+sim second), next to what ``world.mcap`` costs. Independent of the machine's load, unlike
 the full-stack figures; compare it with the CPU ``harness run`` spends per sim second
 (``bench_fullstack.py``).
 
@@ -94,12 +95,13 @@ def main() -> int:
         with tempfile.TemporaryDirectory() as d:
             out = Path(d)
             mcap = feed(WorldRecorder(out / "world.mcap", 0, n), n, a.sim)
-            rrd_sink = RrdRecorder(
+            rrd_sink = RrdRecorder(  # batches as in a run, at the worst: as many as sim time allows (min_wall_s 0)
                 out / "world.rrd",
                 n,
                 (47.0, 8.0, 500.0),
                 serve_port=free_port() if a.serve else None,
-                min_wall_s=0.1 if a.serve else 0.5,
+                batch_s=0.5 * max(1.0, n / 25) if a.serve else 2.0,  # as harness.record.sink.open_world
+                min_wall_s=0.0,
             )
             rrd = feed(rrd_sink, n, a.sim)
             size = (out / "world.rrd").stat().st_size / 1e6 * 60.0 / a.sim

@@ -29,6 +29,7 @@ Entities (``world`` is NED, x north, y east, z down, as ``ViewCoordinates.FRD``)
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import uuid
@@ -164,7 +165,8 @@ class RrdRecorder:
         self._rec.set_sinks(*sinks, default_blueprint=blueprint(n_vehicles))
         self._buf = _Buffer(n_vehicles)
         self._last_flush_wall = real_monotonic_ns()
-        self._trail: list[list[tuple[float, float, float]]] = [[] for _ in range(n_vehicles)]
+        self._trail: list[np.ndarray] = []
+        """Trail points, one (n, 3) array of every vehicle's position per TRAIL_DT_S, oldest first."""
         self._trail_t: list[float] = []
         self._last_step_s: float | None = None
         self._spawned = False
@@ -338,11 +340,10 @@ class RrdRecorder:
         for j, t in enumerate(b.t_s):
             if not self._trail_t or t - self._trail_t[-1] >= TRAIL_DT_S - 1e-9:
                 self._trail_t.append(t)
-                for i in range(n):
-                    self._trail[i].append(tuple(pos[j, i]))
+                self._trail.append(pos[j])
             if self._last_step_s is None or t - self._last_step_s >= VIEW_STEP_S - 1e-9:
                 self._last_step_s = t
-                self._view_step(t, [tuple(pos[j, i]) for i in range(n)])
+                self._view_step(t, pos[j])
         if not self._spawned:
             self._spawned = True
             for i in range(n):
@@ -474,22 +475,22 @@ class RrdRecorder:
         self._events_rest = lines.pop()  # an incomplete last line waits for the next batch
         self._links.add_lines([line for line in lines if line])
 
-    def _view_step(self, t_s: float, pos: list[tuple[float, float, float]]) -> None:
+    def _view_step(self, t_s: float, pos_now: np.ndarray) -> None:
         rr = self._rr
-        keep = sum(1 for t in self._trail_t if t > t_s - self.trail_s)
-        if keep < len(self._trail_t):
-            self._trail_t = self._trail_t[-keep:] if keep else []
-            self._trail = [tr[-keep:] if keep else [] for tr in self._trail]
+        drop = bisect.bisect_right(self._trail_t, t_s - self.trail_s)
+        if drop:
+            del self._trail_t[:drop], self._trail[:drop]
+        trail = np.stack([*self._trail, pos_now])  # (points, n, 3)
         self._rec.set_time("sim_time", duration=t_s)
         self._rec.log(
             "world/trails",
             rr.LineStrips3D(
-                [[*tr, pos[i]] for i, tr in enumerate(self._trail)],
+                [trail[:, i, :] for i in range(self.n)],
                 colors=[vehicle_color(i) for i in range(self.n)],
                 radii=0.08,
             ),
         )
-        self._links_at(t_s, pos)
+        self._links_at(t_s, [tuple(p) for p in pos_now.tolist()])
 
     def _links_at(self, now_s: float, pos: list[tuple[float, float, float]]) -> None:
         rr = self._rr

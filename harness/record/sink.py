@@ -204,6 +204,9 @@ def open_world(
                 n_vehicles,
                 origin,
                 serve_port=serve_port,
+                # live: a batch per 0.5 s of sim (1 s at 50 vehicles; at most 10 per wall second); file only:
+                # per 2 s of sim (at most 2 per wall second)
+                batch_s=0.5 * max(1.0, n_vehicles / 25) if serve_port is not None else 2.0,
                 min_wall_s=0.1 if serve_port is not None else 0.5,
                 events_path=out / "network-events.jsonl",
             )
