@@ -52,7 +52,7 @@ BODY_SCALE = 4.0
 """Vehicles are drawn this many times their real size (arm 0.25 m): visible when the view holds a swarm."""
 TRAIL_DT_S = 0.2
 """One trail point per this much sim time."""
-VIEW_STEP_S = 0.5
+VIEW_STEP_S = 1.0
 """Trails and radio links are logged once per this much sim time."""
 PALETTE: tuple[tuple[int, int, int], ...] = (
     (255, 120, 0),  # orange
@@ -169,6 +169,7 @@ class RrdRecorder:
         """Trail points, one (n, 3) array of every vehicle's position per TRAIL_DT_S, oldest first."""
         self._trail_t: list[float] = []
         self._last_step_s: float | None = None
+        self._links_shown = (False, False)
         self._spawned = False
         self._aps: Mapping[int, AutopilotApi] = {}
         self._ap_seen: dict[tuple[str, int], Any] = {}
@@ -496,6 +497,11 @@ class RrdRecorder:
         rr = self._rr
         rec = self._rec
         quality = [q for q in self._links.quality(now_s) if max(q.pair) < self.n]
+        drops = [d for d in self._links.pop_drops(now_s) if d.dst < self.n and d.src < self.n]
+        shown = (bool(quality), bool(drops))
+        if not any(shown) and not any(self._links_shown):
+            return  # nothing to show and nothing to clear (a run without radio logs nothing here)
+        self._links_shown = shown
         rec.log(
             "world/links",
             rr.LineStrips3D(
@@ -505,7 +511,6 @@ class RrdRecorder:
                 labels=[f"{100 * q.ratio:.0f}%" for q in quality],
             ),
         )
-        drops = [d for d in self._links.pop_drops(now_s) if d.dst < self.n and d.src < self.n]
         rec.log(
             "world/drops",
             rr.Points3D(
