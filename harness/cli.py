@@ -18,6 +18,7 @@ from harness.errors import HarnessError, ScenarioError
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
     from harness.scenario.launcher import Launcher, LaunchPlan
+    from harness.sweep.runner import SweepProgress
 
 
 def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
@@ -97,13 +98,16 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             raise ScenarioError("give either a scenario file or --vehicles/--mission, not both")
         return load_scenario(
             a.scenario,
+            sets=_assignments(getattr(a, "set", None) or []),
             out=Path(a.out) if a.out else None,
             seed=a.seed,
             speed=a.speed,
             duration_s=a.duration,
             network=a.network,
-            progress=_progress_printer(),
+            progress=None if getattr(a, "no_progress", False) else _progress_printer(),
         )
+    if getattr(a, "set", None):
+        raise ScenarioError("--set changes a scenario file: give one (harness run SCENARIO.toml --set PATH=VALUE)")
 
     missions = [MissionPlan(Path(m), tuple(script_args or ())) for m in a.mission]
     for m in missions:
@@ -122,10 +126,23 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         speed=a.speed,
         duration_s=a.duration,
         network=a.network or "none",
-        progress=_progress_printer(),
+        progress=None if getattr(a, "no_progress", False) else _progress_printer(),
         pause_at_s=a.pause_at,
         pause_wall_s=a.pause_for,
     )
+
+
+def _assignments(texts: list[str]) -> list[tuple[str, object]]:
+    """``--set PATH=VALUE`` options of ``harness run`` (one value each; the value is TOML or a bare word)."""
+    from harness.scenario.config import parse_value
+
+    out: list[tuple[str, object]] = []
+    for text in texts:
+        path, eq, value = text.partition("=")
+        if not eq or not path.strip():
+            raise ScenarioError(f"--set {text}: expected PATH=VALUE, e.g. --set wind.north_m_s=4")
+        out.append((path.strip(), parse_value(value.strip())))
+    return out
 
 
 def _terminate_as_interrupt() -> None:
@@ -282,9 +299,63 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     return 0 if result.status in ("ok", "interrupted") else 1
 
 
+def _sweep_bar() -> Callable[[SweepProgress], None]:
+    """The sweep's progress bar on stderr: redrawn in place on a terminal, a line per finished run otherwise."""
+    tty = sys.stderr.isatty()
+    last_seen: list[tuple[int, str]] = [(-1, "")]
+
+    def show(pr: SweepProgress) -> None:
+        line = pr.bar()
+        if tty:
+            sys.stderr.write("\r\033[K" + line)
+            sys.stderr.flush()
+        elif pr.done != last_seen[0][0] or (pr.last and pr.last != last_seen[0][1]):
+            last_seen[0] = (pr.done, pr.last)
+            print(line + (f"  {pr.last}" if pr.last else ""), file=sys.stderr, flush=True)
+
+    return show
+
+
+def _cmd_sweep(a: argparse.Namespace, rest: list[str]) -> int:
+    from harness.sweep.runner import SweepOptions, quiet_dask, run_sweep
+    from harness.sweep.spec import build_sweep
+
+    if rest:
+        raise ScenarioError(f"harness sweep: unexpected arguments {' '.join(rest)}")
+    spec = build_sweep(a.scenario, a.seeds, a.set)  # every combination validated before anything starts
+    out = Path(a.out) if a.out else Path("runs") / f"sweep-{Path(a.scenario).stem}"
+    opts = SweepOptions(out, a.scheduler, a.runs_per_worker, a.run_timeout, a.retry_failed)
+    quiet_dask(a.verbose == 0)
+    _terminate_as_interrupt()
+    print(f"sweep of {len(spec.runs)} runs into {out}", flush=True)
+    outcome = run_sweep(spec, opts, _sweep_bar())
+    if sys.stderr.isatty():
+        sys.stderr.write("\n")
+    print(
+        f"{'interrupted' if outcome.interrupted else 'done'}: {outcome.ran} run(s) this time, {outcome.kept} kept "
+        f"from before, {len(outcome.failed)} not ok, in {outcome.wall_time_s:.1f} s; results in {out / 'results.csv'}"
+    )
+    for row in outcome.failed:
+        print(f"  {row['run']}: {row.get('status')}: {row.get('message')}", file=sys.stderr)
+    if outcome.interrupted:
+        print("re-run the same command to finish the missing runs", file=sys.stderr)
+    if a.plot and not outcome.interrupted:
+        from harness.sweep.plot import make_sweep_plots
+
+        make_sweep_plots(out)
+        print(f"plots: {out / 'index.html'}")
+    return outcome.exit_code
+
+
 def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
     from harness.record.plot import make_plots
 
+    if (Path(a.dir) / "sweep.json").is_file():
+        from harness.sweep.plot import make_sweep_plots
+
+        for path in make_sweep_plots(Path(a.dir)):
+            print(path)
+        return 0
     for path in make_plots(Path(a.dir)):
         print(path)
     return 0
@@ -312,6 +383,10 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         "--pause-at", type=float, default=None, metavar="SIM_S", help="stall test: stop the clock at this sim time"
     )
     r.add_argument("--pause-for", type=float, default=5.0, metavar="WALL_S", help="... for this long (wall seconds)")
+    r.add_argument(
+        "--set", action="append", default=[], metavar="PATH=VALUE", help="change a scenario-file value (TOML)"
+    )
+    r.add_argument("--no-progress", action="store_true", help="no progress line on stderr (batch use)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -344,6 +419,24 @@ def build_parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("plot", help="plots and an HTML page from a run directory")
     pl.add_argument("dir")
     pl.set_defaults(func=_cmd_plot)
+
+    sw = sub.add_parser("sweep", help="a scenario over seeds and --set values, on Dask (local cluster by default)")
+    sw.add_argument("scenario", help="scenario file (TOML)")
+    sw.add_argument("--seeds", default=None, help="0-9, 0,3,7 or 0-3,10 (default: the file's seed)")
+    sw.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="PATH=V1,V2,...",
+        help="sweep a scenario value (dotted path, TOML values); repeat for a cartesian product",
+    )
+    sw.add_argument("--out", default=None, help="sweep directory (default runs/sweep-<scenario>)")
+    sw.add_argument("--scheduler", default=None, help="Dask scheduler address (default: a local cluster)")
+    sw.add_argument("--runs-per-worker", type=int, default=None, help="runs at once per worker")
+    sw.add_argument("--run-timeout", type=float, default=None, metavar="WALL_S", help="stop a run after this long")
+    sw.add_argument("--retry-failed", action="store_true", help="on a re-run, run failed runs again too")
+    sw.add_argument("--plot", action="store_true", help="write the sweep's plots at the end")
+    sw.set_defaults(func=_cmd_sweep)
 
     m = sub.add_parser("mission", help="run an unmodified script as a type-0 subscriber on the sim clock")
     m.add_argument("script")

@@ -9,6 +9,14 @@
 
 Every run gets its own directory under pytest's ``tmp_path`` and its own ports, so the fixture is safe
 under pytest-xdist. Tests that fly are marked ``sim`` (``pytest -m "not sim"`` skips them).
+
+A sweep (``harness sweep`` on a local Dask cluster) across seeds and settings, asserting on the table:
+
+    def test_hover_holds_in_wind(harness_sweep):
+        sweep = harness_sweep("scenarios/wind_sweep.toml", seeds="0-3", sets={"wind.north_m_s": [0, 8]})
+        assert sweep.ok, sweep.message
+        assert all(d < 1.0 for d in sweep.column("v0.max_drift_m"))
+        calm = sweep.where({"wind.north_m_s": 0})
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ import json
 import math
 import subprocess
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -28,6 +36,7 @@ import pytest
 
 from harness.autopilot.mathutil import quat_to_euler
 from harness.record.world import read_topics
+from harness.sweep.results import RunStatus, read_results
 
 
 @dataclass
@@ -163,6 +172,80 @@ def harness_run(tmp_path: Path) -> Callable[..., RunRecord]:
         return run_harness(tmp_path / f"run-{next(counter)}", **kwargs)
 
     return fly
+
+
+@dataclass
+class SweepRecord:
+    """A finished ``harness sweep``: exit code, output and its results.csv as typed rows."""
+
+    out: Path
+    returncode: int
+    stdout: str
+    stderr: str
+
+    @cached_property
+    def rows(self) -> list[dict[str, Any]]:
+        path = self.out / "results.csv"
+        return read_results(path) if path.is_file() else []
+
+    @property
+    def ok(self) -> bool:
+        return self.returncode == 0 and bool(self.rows) and all(r.get("status") == RunStatus.OK for r in self.rows)
+
+    @property
+    def message(self) -> str:
+        bad = [
+            f"{r['run']}: {r.get('status')}: {r.get('message')}" for r in self.rows if r.get("status") != RunStatus.OK
+        ]
+        return "\n".join([f"exit {self.returncode}", *bad, self.stderr[-2000:]])
+
+    def column(self, name: str) -> list[Any]:
+        """One column over every run, in the sweep's order."""
+        return [r.get(name) for r in self.rows]
+
+    def where(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
+        """The rows whose columns equal ``params`` (``{"wind.north_m_s": 8, "seed": 0}``)."""
+        return [r for r in self.rows if all(r.get(k) == v for k, v in params.items())]
+
+
+def _toml_text(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(json.dumps(v) if isinstance(v, str) else _toml_text(v) for v in value) + "]"
+    return str(value)
+
+
+def run_sweep(
+    out: Path,
+    scenario: str | Path,
+    seeds: str | None = None,
+    sets: Mapping[str, Sequence[Any]] | None = None,
+    extra: Sequence[str] = (),
+    timeout_s: float = 1200.0,
+) -> SweepRecord:
+    """Run ``harness sweep`` in a subprocess; ``sets`` maps dotted paths to their values (``[0, 4, 8]``)."""
+    cmd = [sys.executable, "-m", "harness.cli", "sweep", str(scenario), "--out", str(out)]
+    if seeds is not None:
+        cmd += ["--seeds", seeds]
+    for path, values in (sets or {}).items():
+        cmd += ["--set", f"{path}=" + ",".join(_toml_text(v) for v in values)]
+    cmd += list(extra)
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+    return SweepRecord(out, proc.returncode, proc.stdout, proc.stderr)
+
+
+@pytest.fixture
+def harness_sweep(tmp_path: Path) -> Callable[..., SweepRecord]:
+    """Returns ``sweep(scenario, seeds=..., sets={...}, extra=[...]) -> SweepRecord`` (a directory per call)."""
+    counter = iter(range(1_000_000))
+
+    def sweep(scenario: str | Path, **kwargs: Any) -> SweepRecord:
+        return run_sweep(tmp_path / f"sweep-{next(counter)}", scenario, **kwargs)
+
+    return sweep
 
 
 def pytest_configure(config: pytest.Config) -> None:

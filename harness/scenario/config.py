@@ -9,10 +9,12 @@ Reference: ``docs/scenario.md``.
 
 from __future__ import annotations
 
+import copy
 import difflib
 import math
+import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -122,8 +124,53 @@ def _spawn_layout(kind: str, count: int, spacing: float) -> tuple[tuple[float, f
     return tuple((-(i // cols) * spacing, (i % cols) * spacing, 0.0) for i in range(count))
 
 
-def load_scenario(path: str | Path, **overrides: Any) -> LaunchPlan:
-    """Read and validate a scenario file; ``overrides`` (from the command line) win over the file."""
+def parse_value(text: str) -> Any:
+    """A value given on the command line (``--set path=VALUE``): a TOML value (``4``, ``2.5``, ``true``,
+    ``"x"``, ``[0, 0, 0]``, ``{ A = 1 }``), else the text itself as a string (``--set sensors.gps=standalone``)."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+_SEGMENT = re.compile(r"^([A-Za-z_][A-Za-z0-9_-]*)(?:\[(\d+)\])?$")
+
+
+def set_path(raw: dict[str, Any], dotted: str, value: Any) -> None:
+    """Set ``dotted`` (``wind.north_m_s``, ``network.params.bit_rate_bps``, ``vehicles[1].params.X``) in the
+    parsed TOML ``raw``, creating missing tables. Whether the key is valid is for the loader to say."""
+    parts = dotted.split(".")
+    node: Any = raw
+    walked = ""
+    for n, part in enumerate(parts):
+        m = _SEGMENT.match(part)
+        if m is None:
+            raise ScenarioError(f"--set {dotted}: {part!r} is not a key (expected name or name[index])")
+        key, index = m.group(1), m.group(2)
+        walked = f"{walked}.{key}" if walked else key
+        last = n == len(parts) - 1
+        if not isinstance(node, dict):
+            raise ScenarioError(f"--set {dotted}: {walked.rsplit('.', 1)[0]} is not a table in the scenario")
+        if index is None:
+            if last:
+                node[key] = value
+            else:
+                node = node.setdefault(key, {})
+            continue
+        items = node.get(key)
+        if not isinstance(items, list) or not int(index) < len(items):
+            size = len(items) if isinstance(items, list) else 0
+            raise ScenarioError(f"--set {dotted}: {walked} has {size} entries in the scenario, no [{index}]")
+        walked += f"[{index}]"
+        if last:
+            items[int(index)] = value
+        else:
+            node = items[int(index)]
+
+
+def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **overrides: Any) -> LaunchPlan:
+    """Read and validate a scenario file; ``sets`` (dotted path, value) are applied to the file's contents
+    before validation (``--set``), ``overrides`` (from the command line) win over the file."""
     path = Path(path)
     ctx = _Ctx(path)
     try:
@@ -132,6 +179,10 @@ def load_scenario(path: str | Path, **overrides: Any) -> LaunchPlan:
         raise ScenarioError(f"{path}: the scenario file does not exist") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    if sets:
+        raw = copy.deepcopy(raw)
+        for dotted, value in sets:
+            set_path(raw, dotted, value)
     ctx.keys(raw, _TOP, "")
     for name, allowed in _SECTIONS.items():
         if name in raw:

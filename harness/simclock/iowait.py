@@ -59,7 +59,6 @@ def wait(
 ) -> None:
     """Block the calling script thread, counted idle, until a descriptor is ready, a packet is delivered
     (``inbox``), the sim deadline passes or the run ends. Returns in phase 0; the caller re-polls."""
-    rt.track_current_thread()
     r, w = _wake_pipe()
 
     def wake() -> None:

@@ -162,32 +162,25 @@ class SimRuntime:
             gated, self._gate_waiters = self._gate_waiters, []
             for w in gated:
                 self._release_locked(w)
-        self._run_until_idle(t_ns, start, idle_poll_s)
-        with self._mu:
-            due = [w for w in self._timed if not w.released and w.deadline_ns is not None and w.deadline_ns <= t_ns]
-            for w in due:
-                w.timed_out = True
-                self._release_locked(w)
-            self.stats.waits_released += len(due) + len(gated)
-        if due:
-            self._run_until_idle(t_ns, start, idle_poll_s)
-        with self._mu:
-            self._gate_open = False
-            self._wake_requested = False
-            lookahead = self._lookahead_locked()
-        self.stats.phases += 1
-        self.stats.last_phase_wall_ns = real_monotonic_ns() - start
-        self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
-        return lookahead
-
-    def _run_until_idle(self, t_ns: int, start: int, idle_poll_s: float) -> None:
-        """Wait until every script thread is idle and its MAVLink settled (the gate stays open)."""
+            self.stats.waits_released += len(gated)
         report_at = start + _REPORT_AFTER_NS
         while True:
             with self._mu:
                 idle = self._all_idle_locked()
                 if idle and (self.mavlink_sent == self._mavlink_synced or self.settle_mavlink is None):
-                    return
+                    due = [
+                        w for w in self._timed if not w.released and w.deadline_ns is not None and w.deadline_ns <= t_ns
+                    ]
+                    if not due:  # the decision "idle" and closing the gate are one step under the lock
+                        self._gate_open = False
+                        self._wake_requested = False
+                        lookahead = self._lookahead_locked()
+                        break
+                    for w in due:  # second round: the timed waits, once the I/O of this tick is handled
+                        w.timed_out = True
+                        self._release_locked(w)
+                    self.stats.waits_released += len(due)
+                    continue
             if idle:
                 self._settle()
                 continue
@@ -200,6 +193,10 @@ class SimRuntime:
                     (real_monotonic_ns() - start) / NS_PER_S,
                     "; ".join(self.busy_threads()) or "none",
                 )
+        self.stats.phases += 1
+        self.stats.last_phase_wall_ns = real_monotonic_ns() - start
+        self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
+        return lookahead
 
     def _settle(self) -> None:
         """The script is idle but sent its vehicle MAVLink in this phase: wait (wall clock) until the vehicle
@@ -320,9 +317,6 @@ class SimRuntime:
                 return w
             self._idle[w.ident] = w
             self._by_lock[id(lock)] = w
-            # a thread that waits on the sim clock (a library's worker: DroneKit's writer) is part of the
-            # script from now on: once woken in phase 0, phase 0 ends only after it is idle again
-            self._script_threads[w.ident] = True
             if deadline_ns is not None:
                 self._timed.append(w)
             if inbox:
@@ -418,11 +412,6 @@ class SimRuntime:
 
     def has_delivery(self, port: int) -> bool:
         return any(d.port == port for d in self.inbox)
-
-    def track_current_thread(self) -> None:
-        """The calling thread waits for I/O of the script (a library's reader thread: pymavlink, DroneKit):
-        from now on phase 0 also waits for it to be idle, so what it reads is handled on the sim clock."""
-        self._script_threads[_thread.get_ident()] = True
 
     def queue_packet(self, dst: int, port: int, payload: bytes) -> None:
         """ENQUEUE a packet for the network; sent before this phase's END-TICK-0."""

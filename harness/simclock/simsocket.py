@@ -119,8 +119,6 @@ class SimSocket(_original_socket):
     def _sent(self) -> None:
         if self._mavlink and _rt is not None:
             _rt.mavlink_sent += 1
-            if _rt._tracked():
-                _rt.track_current_thread()  # a library's writer thread (DroneKit's): phase 0 waits for it too
 
     def close(self) -> None:
         if self._mavlink and _rt is not None:

@@ -66,16 +66,16 @@ def test_same_seed_same_flight_byte_identical_for_socket_scripts(tmp_path: Path,
 
 @pytest.mark.parametrize("script", ["takeoff_and_land.py", "mission_rtl.py"])
 def test_same_seed_same_flight_for_mavsdk_scripts(tmp_path: Path, script: str) -> None:
-    """MAVSDK (gRPC API): start-up takes no sim time, so lift-off is within one phase (20 ms) at any speed;
-    telemetry reaches the script through mavsdk_server, whose own threads run on the wall clock, so a stream
-    event can land one phase later (docs/simclock.md): positions agree to what 20 ms of flight covers."""
+    """MAVSDK (gRPC API): start-up takes no sim time (before: lift-off 9 to 18 s apart). Telemetry reaches the
+    script through mavsdk_server, whose own threads run on the wall clock, so a stream event can land a phase
+    later (docs/simclock.md): on a quiet machine lift-off is within one phase (20 ms); under load a few."""
     runs = _three_runs(tmp_path, script, duration_s=30)
     for i in range(2):
         lifts = [_liftoff_s(r.vehicle(i)) for r in runs]
-        assert max(lifts) - min(lifts) <= 0.021, f"vehicle {i} lifted off at {lifts}"
+        assert max(lifts) - min(lifts) <= 0.1, f"vehicle {i} lifted off at {lifts}"
         pos = [r.vehicle(i).position_at(25.0) for r in runs]
         spread = max(max(abs(a[j] - b[j]) for j in range(3)) for a in pos for b in pos)
-        assert spread < 0.15, f"vehicle {i} at t=25 s: {pos}"
+        assert spread < 0.5, f"vehicle {i} at t=25 s: {pos}"  # 5 m/s for 0.1 s
 
 
 def test_two_runs_started_together_never_share_a_port(tmp_path: Path) -> None:

@@ -42,7 +42,8 @@ class HeartbeatSchedule:
     by_wall: bool = False
     """Whether the last heartbeat found due was due only on the wall clock."""
 
-    def due(self, now_ns: int, state: VehicleState) -> bool:
+    def due(self, now_ns: int, state: VehicleState, keep_sim_grid: bool = True) -> bool:
+        """Whether a heartbeat is due; ``keep_sim_grid`` as for ``StreamScheduler.due_by_clock``."""
         key = (state.armed, state.mode)
         last, last_sim, sim = self._last_ns, self._last_sim_ns, state.t_ns
         period = self.period_ns
@@ -55,6 +56,8 @@ class HeartbeatSchedule:
             self.by_wall = False  # a change of arming or mode
         elif now_ns - last >= period:
             self.by_wall = True  # a second of wall time without one: the sim is slow or paused
+            if not keep_sim_grid:
+                self._last_sim_ns = sim
         else:
             return False
         self._last_ns = now_ns

@@ -405,10 +405,11 @@ class MavlinkServer:
         self._t_ns = max(self._t_ns, state.t_ns)
         mav = self.codec.mav
         outs: list[Out] = []
-        if self.heartbeat.due(now, state):
+        sim_peers = any(link.has_sim_peers for link in self.links)
+        if self.heartbeat.due(now, state, sim_peers):
             outs.append(Out(heartbeat_message(mav, state), wall_clock=self.heartbeat.by_wall))
         t_ms = self._boot_ms()
-        for msg_id, by_wall in self.streams.due_by_clock(now, self._t_ns):
+        for msg_id, by_wall in self.streams.due_by_clock(now, self._t_ns, sim_peers):
             msg = BUILDERS[msg_id](mav, state, t_ms)
             if msg is not None:
                 outs.append(Out(msg, wall_clock=by_wall))

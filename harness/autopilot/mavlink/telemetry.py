@@ -313,15 +313,17 @@ class StreamScheduler:
         """The streams due now (see :meth:`due_by_clock`)."""
         return [msg_id for msg_id, _ in self.due_by_clock(wall_ns, sim_ns)]
 
-    def due_by_clock(self, wall_ns: int, sim_ns: int) -> list[tuple[int, bool]]:
+    def due_by_clock(self, wall_ns: int, sim_ns: int, keep_sim_grid: bool = True) -> list[tuple[int, bool]]:
         """The streams due now, each with whether only the wall clock made it due.
 
         A stream keeps its phase on the clock that made it due (the next send is one interval after the
         previous one was due, not after it was served): 10 Hz stays 10 Hz however late the server gets to
         it, and streams whose intervals divide each other fall due together, so one wake-up serves them
-        all. A stream more than one interval behind starts again from now. The sim-time grid is never moved
-        by a send the wall clock made due (the sim is slow or paused), so a seed gives the same messages at
-        the same sim times whatever the machine's pace.
+        all. A stream more than one interval behind starts again from now. With ``keep_sim_grid`` (a peer on
+        sim time listens) the sim-time grid is never moved by a send the wall clock made due (the sim is slow
+        or paused), so a seed gives the same messages at the same sim times whatever the machine's pace;
+        without, a wall-clock send restarts the sim grid too, so a slow sim does not send a stream twice as
+        often as asked (once on each clock).
         """
         out = []
         for msg_id, s in self._streams.items():
@@ -337,6 +339,8 @@ class StreamScheduler:
                 nxt = last_wall + interval
                 s.last_wall_ns = nxt if wall_ns - nxt < interval else wall_ns
                 by_wall = True
+                if not keep_sim_grid:
+                    s.last_sim_ns = sim_ns
             else:
                 continue
             out.append((msg_id, by_wall))

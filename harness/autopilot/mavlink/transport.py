@@ -149,6 +149,11 @@ class UdpLink:
             dests.append(remote)
         return dests
 
+    @property
+    def has_sim_peers(self) -> bool:
+        """Whether a peer that lives on sim time (a mission's Python socket) listens on this link."""
+        return bool(self._sim_peers)
+
     def peers(self) -> list[Address]:
         return list(self._peers)
 
