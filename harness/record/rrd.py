@@ -151,6 +151,8 @@ class RrdRecorder:
         self.batch_s = batch_s
         self.min_wall_s = min_wall_s
         self.trail_s = trail_s
+        self.view_step_s = VIEW_STEP_S / 2 if serve_port is not None else VIEW_STEP_S
+        """Trails and links every second of sim; every half second live (a trail keeps up with its body)."""
         self.events_path = events_path
         self.closed = False
         self.grpc_url: str | None = None
@@ -336,13 +338,13 @@ class RrdRecorder:
         rec.send_columns(
             "series/speed_m_s", indexes=times, columns=rr.Scalars.columns(scalars=np.linalg.norm(vel, axis=2))
         )
-        # trails (a point per TRAIL_DT_S) and radio links: a state every VIEW_STEP_S of sim time
+        # trails (a point per TRAIL_DT_S) and radio links: a state every view_step_s of sim time
         self._read_events()
         for j, t in enumerate(b.t_s):
             if not self._trail_t or t - self._trail_t[-1] >= TRAIL_DT_S - 1e-9:
                 self._trail_t.append(t)
                 self._trail.append(pos[j])
-            if self._last_step_s is None or t - self._last_step_s >= VIEW_STEP_S - 1e-9:
+            if self._last_step_s is None or t - self._last_step_s >= self.view_step_s - 1e-9:
                 self._last_step_s = t
                 self._view_step(t, pos[j])
         if not self._spawned:
