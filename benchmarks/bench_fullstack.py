@@ -33,6 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from bare_jsbsim import bare_rtf  # noqa: E402  (a sibling script, not a package)
+
 TARGETS = {1: 30.0, 10: 3.0, 50: 0.5}
 BEACON_HZ = 10.0
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -130,9 +133,12 @@ class Result:
 
 
 MISSIONS = {"px4": "hover.py", "ardupilot": "hover_dronekit.py"}
+VIEWS = ("off", "file", "web")
+"""The 3D view: off (``HARNESS_RRD=0``: world.mcap only), file (world.rrd, the default when Rerun is
+installed), web (``--view web``: world.rrd and the live stream served, with no viewer connected)."""
 
 
-def run(vehicles: int, hover_s: float, firmware: str = "px4") -> Result:
+def run(vehicles: int, hover_s: float, view: str = "file", speed: str = "max", firmware: str = "px4") -> Result:
     out = Path(tempfile.mkdtemp(prefix=f"bench-fullstack-{vehicles}-"))
     cmd = [
         sys.executable,
@@ -149,11 +155,15 @@ def run(vehicles: int, hover_s: float, firmware: str = "px4") -> Result:
         str(ROOT / "missions" / MISSIONS[firmware]),
         "--out",
         str(out),
+        *(["--view", "web"] if view == "web" else []),
+        "--speed",
+        speed,
         "--",
         str(hover_s),
         str(BEACON_HZ),
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    env = dict(os.environ, HARNESS_RRD="0" if view == "off" else "1", XDG_CONFIG_HOME=str(out / "xdg"))
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     meter = CpuMeter(proc.pid)
     _, err = proc.communicate(timeout=3600)
     cpu = meter.stop()
@@ -177,7 +187,22 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=1, help="runs per size; the median RTF is reported")
     ap.add_argument("--hover", type=float, default=30.0, help="seconds of hover in the mission")
     ap.add_argument("--firmware", choices=sorted(MISSIONS), default="px4", help="the vehicles' personality")
+    ap.add_argument(
+        "--views",
+        default="file",
+        help="comma-separated 3D-view settings to compare, runs interleaved: off (no world.rrd), file (world.rrd, "
+        "the default), web (--view web, no viewer connected); e.g. --views off,web",
+    )
+    ap.add_argument(
+        "--speed",
+        default="max",
+        help="pace the runs (e.g. 1): CPU per process class then shows each setting's work without the "
+        "contention of a run as fast as possible",
+    )
     a = ap.parse_args()
+    views = a.views.split(",")
+    if any(v not in VIEWS for v in views):
+        ap.error(f"--views: each of {VIEWS}, got {a.views!r}")
     client = "MAVSDK (gRPC API)" if a.firmware == "px4" else "DroneKit"
     print(
         f"full stack ({a.firmware}): JSBSim physics + autopilots + MAVLink + built-in network + 1 {client} mission "
@@ -188,22 +213,33 @@ def main() -> int:
         f"{a.hover:g} s, land; {BEACON_HZ:g} Hz radio beacons to every vehicle"
     )
     print(
-        f"{'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3}   "
-        "CPU s: harness run / missions / mavsdk_server / network"
+        f"{'view':>5} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
+        f"{'bare':>7} {'eff.':>5}   CPU s: harness run / missions / mavsdk_server / network"
     )
     for n in a.sizes:
-        runs = sorted((run(n, a.hover, a.firmware) for _ in range(a.repeat)), key=lambda x: x.rtf)
-        r = runs[len(runs) // 2]
-        spread = "  (runs: " + ", ".join(f"{x.rtf:.2f}" for x in runs) + ")" if a.repeat > 1 else ""
-        cpu = r.cpu
-        print(
-            f"{n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {r.rtf:>6.2f}x {r.flight_rtf:>6.2f}x "
-            f"{TARGETS.get(n, 0.0):>6.1f}x {int(all(x.ok for x in runs)):>3}   "
-            f"{cpu.get('harness run', 0):.1f} / {cpu.get('missions', 0):.1f} / {cpu.get('mavsdk_server', 0):.1f} / "
-            f"{cpu.get('network', 0):.1f}{spread}",
-            flush=True,
-        )
+        by_view: dict[str, list[Result]] = {v: [] for v in views}
+        for _ in range(a.repeat):  # interleaved, so a change in the machine's load hits every setting alike
+            for v in views:
+                by_view[v].append(run(n, a.hover, v, a.speed, a.firmware))
+        bare = bare_rtf(n)
+        for v in views:
+            report(v, n, sorted(by_view[v], key=lambda x: x.rtf), a.repeat, bare)
     return 0
+
+
+def report(view: str, n: int, runs: list[Result], repeat: int, bare: float) -> None:
+    """One line: the median run, and its efficiency = its RTF / the RTF of ``n`` bare JSBSim instances
+    (``bare_jsbsim.py``), measured in the same session (machines here differ ~2.5x in speed; the ratio less)."""
+    r = runs[len(runs) // 2]
+    spread = "  (runs: " + ", ".join(f"{x.rtf:.2f}" for x in runs) + ")" if repeat > 1 else ""
+    cpu = r.cpu
+    print(
+        f"{view:>5} {n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {r.rtf:>6.2f}x {r.flight_rtf:>6.2f}x "
+        f"{TARGETS.get(n, 0.0):>6.1f}x {int(all(x.ok for x in runs)):>3} {bare:>6.2f}x {r.rtf / bare:>5.3f}   "
+        f"{cpu.get('harness run', 0):.1f} / {cpu.get('missions', 0):.1f} / {cpu.get('mavsdk_server', 0):.1f} / "
+        f"{cpu.get('network', 0):.1f}{spread}",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

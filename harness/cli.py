@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING, Any
 from harness.errors import HarnessError, ScenarioError
 
 if TYPE_CHECKING:
-    from harness.scenario.launcher import LaunchPlan
+    from harness.record.viewer import NativeViewer
+    from harness.scenario.launcher import Launcher, LaunchPlan
     from harness.sweep.runner import SweepProgress
 
 
@@ -175,12 +176,48 @@ def _terminate_as_interrupt() -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
+def _live_view(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, list[NativeViewer]]:
+    """``--view [native|web]``: the plan serves its 3D view live; the viewer starts once the stream is up."""
+    import dataclasses
+
+    from harness.record.viewer import NativeViewer, ViewMode, WebViewer, free_port, require_rerun
+
+    mode = ViewMode(a.view)
+    require_rerun(f"--view {mode.value}")
+    natives: list[NativeViewer] = []
+    if mode is ViewMode.WEB:
+        web = WebViewer(a.view_port)
+
+        def on_view(stream: str) -> None:
+            print(f"3D view (web viewer): {web.start(stream)}", flush=True)
+
+    else:
+        native = NativeViewer("", ("--new",))  # checks for a display before the run starts
+
+        def on_view(stream: str) -> None:
+            native.argv[-1] = stream
+            natives.append(native.start())
+            print(f"3D view: native viewer on {stream}", flush=True)
+
+    return dataclasses.replace(plan, view_port=free_port(), on_view=on_view), natives
+
+
 def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
     from harness.scenario.launcher import Launcher
 
     _terminate_as_interrupt()
     plan = _plan_from_args(a, rest)
-    launcher = Launcher(plan)
+    natives: list[NativeViewer] = []
+    if getattr(a, "view", None):
+        plan, natives = _live_view(a, plan)
+    try:
+        return _run_plan(a, plan, natives, Launcher(plan))
+    finally:
+        for viewer in natives:
+            viewer.stop()
+
+
+def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewer], launcher: Launcher) -> int:
     signal.signal(signal.SIGUSR1, lambda *_: launcher.toggle_pause())  # kill -USR1 <pid> pauses / resumes
     result = launcher.run()
     if sys.stderr.isatty():
@@ -201,17 +238,63 @@ def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
 
         make_plots(plan.out)
         print(f"plots: {plan.out / 'index.html'}")
+    if (plan.out / "world.rrd").is_file():
+        print(f"3D view: harness view {plan.out}")
+    else:
+        from harness.record.sink import INSTALL_HINT
+
+        print(f"3D view: not recorded ({INSTALL_HINT})")
+    for viewer in natives:
+        print("the viewer stays open until you close it (Ctrl-C closes it too)", flush=True)
+        try:
+            viewer.wait()
+        except KeyboardInterrupt:
+            pass
     return result.exit_code
+
+
+def _cmd_view(a: argparse.Namespace, rest: list[str]) -> int:
+    """Open a run's ``world.rrd`` in the native viewer, or serve it to a browser (``--web``)."""
+    from harness.record.viewer import NativeViewer, require_rerun, serve_file_web
+
+    run_dir = Path(a.dir)
+    rrd = run_dir / "world.rrd" if run_dir.is_dir() else run_dir
+    require_rerun("harness view")
+    if not rrd.is_file():
+        raise ScenarioError(
+            f"harness view: {rrd} does not exist (runs write world.rrd when the view extra is installed; "
+            "give a run directory such as runs/demo)"
+        )
+    _terminate_as_interrupt()
+    if a.web:
+        proc, url = serve_file_web(rrd, a.port)
+        print(f"3D view (web viewer): {url}  (Ctrl-C stops)", flush=True)
+        try:
+            return proc.wait()
+        except KeyboardInterrupt:
+            return 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    viewer = NativeViewer(str(rrd), ("--new",)).start()
+    try:
+        return viewer.wait()
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        viewer.stop()
 
 
 def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
     import harness
 
-    demo = Path(harness.__file__).resolve().parent.parent / "missions" / "takeoff_and_land.py"
+    demo = Path(harness.__file__).resolve().parent.parent / "missions" / "swarm_demo.py"
     if not demo.is_file():
         raise ScenarioError(f"the demo mission {demo} is missing (run the demo from a clone of the repository)")
     a.mission = [str(demo)]
     a.vehicles = a.vehicles or 3
+    a.network = a.network or "builtin"  # the swarm flocks over the radio
     a.plot = True
     return _cmd_run(a, rest)
 
@@ -224,8 +307,15 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     _terminate_as_interrupt()
     # hand-run MAVSDK scripts listen on 14540 + i (udpin://0.0.0.0:14540 reaches vehicle 0)
     plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540)
+    natives: list[NativeViewer] = []
+    if a.view:
+        plan, natives = _live_view(a, plan)
     print(f"{plan.vehicles} vehicle(s) at x{plan.speed or 'max'} real time; Ctrl-C stops.", flush=True)
-    result = Launcher(plan).run()
+    try:
+        result = Launcher(plan).run()
+    finally:
+        for viewer in natives:
+            viewer.stop()
     if result.status not in ("ok", "interrupted"):
         print(f"harness sitl: {result.status}: {result.message}", file=sys.stderr)
         return 1
@@ -317,6 +407,15 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         help="ArduPilot vehicles' SERIAL0 TCP ports (sitl: 5760 + 10 i; run: the run's own port block)",
     )
     r.add_argument(
+        "--view",
+        nargs="?",
+        const="native",
+        choices=["native", "web"],
+        default=None,
+        help="watch the run live in Rerun: the native viewer (default) or 'web' (serves the web viewer, prints its URL)",
+    )
+    r.add_argument("--view-port", type=int, default=None, help="HTTP port of the web viewer (default: a free one)")
+    r.add_argument(
         "--pause-at", type=float, default=None, metavar="SIM_S", help="stall test: stop the clock at this sim time"
     )
     r.add_argument("--pause-for", type=float, default=5.0, metavar="WALL_S", help="... for this long (wall seconds)")
@@ -336,13 +435,22 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_options(r)
     r.set_defaults(func=_cmd_run)
 
-    d = sub.add_parser("demo", help="fly the bundled takeoff-and-land mission with 3 vehicles and plot it")
+    d = sub.add_parser(
+        "demo",
+        help="3 vehicles flock over the radio to a waypoint and home (missions/swarm_demo.py); plots and 3D view",
+    )
     _add_run_options(d)
     d.set_defaults(func=_cmd_demo)
 
     st = sub.add_parser("sitl", help="vehicles at real time for QGroundControl and hand-run scripts")
     _add_run_options(st)
     st.set_defaults(func=_cmd_sitl, speed=1.0)
+
+    vw = sub.add_parser("view", help="open a run's 3D view (world.rrd) in Rerun's viewer")
+    vw.add_argument("dir", help="run directory (or a .rrd file)")
+    vw.add_argument("--web", action="store_true", help="serve the web viewer instead and print its URL")
+    vw.add_argument("--port", type=int, default=None, help="HTTP port for --web (default: a free one)")
+    vw.set_defaults(func=_cmd_view)
 
     pl = sub.add_parser("plot", help="plots and an HTML page from a run directory")
     pl.add_argument("dir")

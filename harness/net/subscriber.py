@@ -80,6 +80,7 @@ def serve(client: ChannelClient, model: NetworkModel, events: IO[str] | None = N
                 client.send_many(out)
                 if events is not None:
                     _write_events(events, result)
+                    events.flush()  # whole steps reach the file as they happen: the live 3D view reads it
                 steps += 1
             elif isinstance(msg, p.Bye):
                 return steps

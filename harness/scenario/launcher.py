@@ -30,7 +30,7 @@ from typing import Any
 from harness.autopilot.firmware import Firmware, firmware_of
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
-from harness.record.world import WorldRecorder
+from harness.record.sink import WorldSink, open_world
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
@@ -97,6 +97,11 @@ class LaunchPlan:
 
     def firmware_of(self, vehicle: int) -> Firmware:
         return firmware_of(self.firmware, vehicle)
+
+    view_port: int | None = None
+    """Serve the run's 3D view (``world.rrd``'s stream) live to Rerun viewers on this loopback gRPC port."""
+    on_view: Callable[[str], None] | None = None
+    """Called with the live view's address (``rerun+http://…``) once it serves, before the simulation starts."""
 
 
 @dataclass
@@ -267,7 +272,7 @@ class Launcher:
             )
         )
         channel.attach_physics()
-        world = WorldRecorder(plan.out / "world.mcap", self.epoch_ns, n)
+        world = open_world(plan.out, self.epoch_ns, n, plan.origin, serve_port=plan.view_port)
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         faults: list[dict[str, Any]] = []
         status, message = "ok", ""
@@ -292,8 +297,11 @@ class Launcher:
                             + (f"+{step}*i" if step != 1 else "+i")
                             + (f", and also send to udp {list(plan.gcs_extra_ports)}" if plan.gcs_extra_ports else "")
                         )
+                if plan.on_view is not None and world.view is not None and world.view.grpc_url:
+                    plan.on_view(world.view.grpc_url)
                 if plan.autopilots == "in-process":
                     local = self._local_autopilots(channel)
+                    world.attach_autopilots(self._aps)
                 self._start_children(sup, channel.address)
                 expected = (
                     (0 if local else 1) + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
@@ -489,7 +497,7 @@ class Launcher:
             )
 
     def _loop(
-        self, phys: Any, channel: Channel, world: WorldRecorder, summaries: list[VehicleSummary], sup: Any
+        self, phys: Any, channel: Channel, world: WorldSink, summaries: list[VehicleSummary], sup: Any
     ) -> tuple[str, str, int]:
         plan = self.plan
         n = plan.vehicles
