@@ -24,11 +24,9 @@ print(f"attitude updates in 2 s: {len(attitudes)}", flush=True)
 if len(attitudes) < 15:
     sys.exit(f"expected about 20 attitude updates (10 Hz) in 2 s of sim time, got {len(attitudes)}")
 
-while vehicle.home_location is None:
-    vehicle.commands.download()
-    vehicle.commands.wait_ready()
-    if vehicle.home_location is None:
-        time.sleep(1.0)
+while vehicle.home_location is None:  # dronekit2 takes home from PX4's HOME_POSITION (at the first GPS fix)
+    time.sleep(0.5)
+time.sleep(10.0)  # PX4's EKF2 trusts the GPS once its checks have passed for 10 s (DroneKit cannot see it)
 vehicle.armed = True
 while not vehicle.armed:
     time.sleep(0.2)

@@ -316,7 +316,9 @@ class Health:
     mag_ok: bool = False
     baro_ok: bool = False
     gps_ok: bool = False
-    """3D fix with good accuracy and the global position estimate converged."""
+    """The global position is usable: GPS checks passed for 10 s, the estimate converged (PX4 EKF2)."""
+    gps_fix_ok: bool = False
+    """A 3D fix with good accuracy now (home is set at the first one, before ``gps_ok``)."""
     local_position_ok: bool = False
     home_ok: bool = False
     preflight_ok: bool = False

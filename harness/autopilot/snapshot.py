@@ -32,6 +32,7 @@ def build_state(ap: Autopilot) -> VehicleState:
         mag_ok=t - e.last_mag_ns < 2 * fresh,
         baro_ok=t - e.last_baro_ns < fresh,
         gps_ok=e.global_position_ok(c.t_ns),
+        gps_fix_ok=e.gps_fix_ok() and e.pos_valid,
         local_position_ok=e.pos_valid,
         home_ok=ap.home is not None,
         preflight_ok=ap.arming_check() == "",

@@ -488,7 +488,7 @@ class MavlinkServer:
         for ``is_home_position_ok`` before they arm. The flight core sets home only when arming, so this
         asks it to set home here once GPS and the position estimate are good (retried every second of sim time),
         at a sim time (the autopilot's bell), so the same seed gives the same home at the same tick."""
-        if state.armed or not (state.health.gps_ok and state.health.local_position_ok):
+        if state.armed or not (state.health.gps_fix_ok and state.health.local_position_ok):
             return False
         if self._home_try_ns is not None and state.t_ns - self._home_try_ns < 1_000_000_000:
             return False
