@@ -63,7 +63,12 @@ def test_same_seed_same_flight_byte_identical_for_socket_scripts(tmp_path: Path,
     for i in range(2):
         tracks = [[(m["t_s"], m["pos_ned_m"]) for m in r.vehicle(i).track] for r in runs]
         assert [t for t, _ in tracks[0]] == [t for t, _ in tracks[1]] == [t for t, _ in tracks[2]]
-        worst = max(abs(a - b) for k in (1, 2) for (_, p), (_, q) in zip(tracks[0], tracks[k]) for a, b in zip(p, q))
+        worst = max(
+            abs(a - b)
+            for k in (1, 2)
+            for (_, p), (_, q) in zip(tracks[0], tracks[k], strict=True)
+            for a, b in zip(p, q, strict=True)
+        )
         assert worst < 0.001, f"vehicle {i} flew differently (by up to {worst * 100:.2f} cm)"
 
 
