@@ -3,50 +3,29 @@ dropping everything, the same flock measurably falls apart."""
 
 from __future__ import annotations
 
-import itertools
-import math
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from harness.record.world import read_topics
+from tests.net.flocking import flock_figures, fly_scenario
 
 pytestmark = pytest.mark.sim
 FLOCK = Path(__file__).resolve().parents[2] / "missions" / "flock.py"
 
 
 def fly(tmp_path: Path, name: str, max_range_m: float) -> tuple[float, float]:
-    scenario = tmp_path / f"{name}.toml"
-    scenario.write_text(
+    out = fly_scenario(
         f'[vehicles]\ncount = 5\nmission = "{FLOCK}"\nargs = ["120"]\n'
-        f'[network]\nmodel = "builtin"\nparams = {{ max_range_m = {max_range_m} }}\n'
+        f'[network]\nmodel = "builtin"\nparams = {{ max_range_m = {max_range_m} }}\n',
+        tmp_path / name,
     )
-    out = tmp_path / name
-    proc = subprocess.run(
-        [sys.executable, "-m", "harness.cli", "run", str(scenario), "--out", str(out), "--duration", "400"],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    topics = read_topics(out / "world.mcap")
-    tracks = [topics[f"/vehicle/{i}/state"] for i in range(5)]
-    min_sep, max_from_centroid, flocking_s = math.inf, 0.0, 0.0
-    for samples in zip(*tracks, strict=False):
-        ps = [s["pos_ned_m"] for s in samples]
-        if any(p[2] > -9.0 for p in ps):  # only while all five are up at 10 m
-            continue
-        flocking_s += 0.02
-        min_sep = min(min_sep, *(math.dist(a[:2], b[:2]) for a, b in itertools.combinations(ps, 2)))
-        cn, ce = sum(p[0] for p in ps) / 5, sum(p[1] for p in ps) / 5
-        max_from_centroid = max(max_from_centroid, *(math.hypot(p[0] - cn, p[1] - ce) for p in ps))
+    f = flock_figures(out, 5)
     print(
-        f"FIGURE flock {name}: {flocking_s:.0f} s, min separation {min_sep:.2f} m, max from centroid {max_from_centroid:.2f} m"
+        f"FIGURE flock {name}: {f.flocking_s:.0f} s, min separation {f.min_separation_m:.2f} m, "
+        f"max from centroid {f.max_from_centroid_m:.2f} m"
     )
-    assert flocking_s >= 120.0
-    return min_sep, max_from_centroid
+    assert f.flocking_s >= 120.0
+    return f.min_separation_m, f.max_from_centroid_m
 
 
 def test_flock_holds_over_the_radio_and_falls_apart_without_it(tmp_path: Path) -> None:

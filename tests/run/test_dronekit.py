@@ -8,7 +8,6 @@ reaches its own vehicle. Behaviour is checked in the recording: where each vehic
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 import subprocess
@@ -18,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from harness.pytest_plugin import RunRecord, run_harness
-from harness.record.world import read_topics
+from tests.net.flocking import flock_figures, fly_scenario
 
 pytestmark = pytest.mark.sim
 MISSIONS = Path(__file__).resolve().parents[2] / "missions"
@@ -270,27 +269,9 @@ def test_dronekit_flock_holds_over_the_radio(tmp_path: Path) -> None:
         f'[vehicles]\ncount = 5\nfirmware = "ardupilot"\nmission = "{MISSIONS / "flock_dronekit.py"}"\nargs = ["120"]\n'
         '[network]\nmodel = "builtin"\nparams = { max_range_m = 2000.0 }\n'
     )
-    path = tmp_path / "flock.toml"
-    path.write_text(scenario)
-    out = tmp_path / "flock"
-    proc = subprocess.run(
-        [sys.executable, "-m", "harness.cli", "run", str(path), "--out", str(out), "--duration", "400"],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    topics = read_topics(out / "world.mcap")
-    tracks = [topics[f"/vehicle/{i}/state"] for i in range(5)]
-    min_sep, spread, flocking_s = math.inf, 0.0, 0.0
-    for samples in zip(*tracks, strict=False):
-        ps = [s["pos_ned_m"] for s in samples]
-        if any(p[2] > -9.0 for p in ps):
-            continue
-        flocking_s += 0.02
-        min_sep = min(min_sep, *(math.dist(a[:2], b[:2]) for a, b in itertools.combinations(ps, 2)))
-        cn, ce = sum(p[0] for p in ps) / 5, sum(p[1] for p in ps) / 5
-        spread = max(spread, *(math.hypot(p[0] - cn, p[1] - ce) for p in ps))
+    out = fly_scenario(scenario, tmp_path / "flock")
+    f = flock_figures(out, 5)
+    flocking_s, min_sep, spread = f.flocking_s, f.min_separation_m, f.max_from_centroid_m
     print(
         f"FIGURE dronekit flock: {flocking_s:.0f} s, min separation {min_sep:.2f} m, max from centroid {spread:.2f} m"
     )
