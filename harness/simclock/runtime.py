@@ -386,15 +386,14 @@ class SimRuntime:
         (None: until one comes); None on timeout or when the run is over. Script threads only."""
         deadline = None if timeout_s is None else self._now_ns + round(timeout_s * NS_PER_S)
         while True:
-            inbox = self.inbox  # deliveries only arrive between phases, never while this runs
+            # deliveries only arrive between phases, never while this runs
             if port is None:
-                if inbox:
-                    return inbox.popleft()
+                if self.inbox:
+                    return self.inbox.popleft()
             else:
-                for i, d in enumerate(inbox):
-                    if d.port == port:
-                        del inbox[i]
-                        return d
+                found = self.pop_delivery(port)
+                if found is not None:
+                    return found
             if self.closed or (deadline is not None and self._now_ns >= deadline):
                 return None
             w = self.new_waiter(deadline_ns=deadline, inbox=True)
