@@ -25,6 +25,7 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from harness.simclock import iowait
+from harness.simclock.clock import NS_PER_S, real_monotonic_ns
 from harness.simclock.endpoints import (
     LISTEN_HELLO,
     SETTLE_PREFIX,
@@ -222,7 +223,14 @@ class SimSocket(_original_socket):
 
 
 class _Settler:
-    """Asks the vehicle to confirm that it has handled the script's MAVLink (``SimRuntime.settle_mavlink``)."""
+    """Asks the vehicle to confirm that it has handled the script's MAVLink (``SimRuntime.settle_mavlink``).
+
+    A loaded machine can take seconds to schedule the vehicle's MAVLink thread, so it waits up to
+    ``PATIENCE_S`` of wall time; after an unanswered request it waits only ``IMPATIENCE_S`` until the vehicle
+    answers again (a vehicle that is gone does not hold every phase for long: the run ends on its own)."""
+
+    PATIENCE_S = 20.0
+    IMPATIENCE_S = 0.5
 
     def __init__(self, ep: VehicleEndpoints) -> None:
         self._dst = (ep.host, ep.udp_port)
@@ -230,20 +238,24 @@ class _Settler:
         self._sock.bind(("127.0.0.1", 0))
         self._sock.setblocking(False)
         self._seq = 0
+        self._answered = True
 
-    def __call__(self, timeout_s: float = 2.0) -> bool:
+    def __call__(self) -> bool:
         self._seq += 1
         token = SETTLE_PREFIX + str(self._seq).encode()
         self._sock.sendto(token, self._dst)
+        deadline = real_monotonic_ns() + int((self.PATIENCE_S if self._answered else self.IMPATIENCE_S) * NS_PER_S)
         while True:
-            r, _, _ = iowait.real_select([self._sock], [], [], timeout_s)
+            r, _, _ = iowait.real_select([self._sock], [], [], max(0, deadline - real_monotonic_ns()) / NS_PER_S)
             if not r:
+                self._answered = False
                 return False
             try:
                 data = self._sock.recv(64)
             except OSError:
                 continue
-            if data == token:
+            if data == token:  # an older token is a late answer to a request that timed out
+                self._answered = True
                 return True
 
 
