@@ -31,6 +31,7 @@ from harness.autopilot.firmware import Firmware, firmware_of
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
+from harness.record.status import Checkpoint, write_json
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
@@ -146,9 +147,7 @@ class RunResult:
 
 
 def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(result.to_json() | extra, indent=2))
-    os.replace(tmp, out / "summary.json")
+    write_json(out / "summary.json", result.to_json() | extra | {"finished": True})
 
 
 def _python() -> str:
@@ -237,6 +236,7 @@ class Launcher:
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
         self._aps: dict[int, Any] = {}
+        self._checkpoint: Checkpoint | None = None
         """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
@@ -282,6 +282,18 @@ class Launcher:
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         local: list[Any] = []
+        extra = self._summary_extra
+        self._checkpoint = Checkpoint(
+            plan.out,
+            lambda: (
+                RunResult(
+                    "running", phys.t_ns / NS_PER_S, (real_monotonic_ns() - wall0) / NS_PER_S, summaries, []
+                ).to_json()
+                | extra()
+            ),
+            world.mcap.flush,
+        )
+        self._checkpoint.write()
         with ports, Children(plan.out) as sup:  # the block stays this run's until every process has stopped
             try:
                 if plan.progress is not None:
@@ -343,19 +355,19 @@ class Launcher:
         if any(s.crashed for s in summaries) and status == "ok":
             status, message = "failed", "a vehicle crashed"
         result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
-        write_summary(
-            plan.out,
-            result,
-            {
-                "seed": plan.seed,
-                "api_port_base": self.api_port_base,
-                "gcs_port": self.gcs_port,
-                "tick_hz": plan.tick_hz,
-                "physics_hz": plan.physics_hz,
-                "phase_every": plan.phase_every,
-            },
-        )
+        write_summary(plan.out, result, self._summary_extra())
         return result
+
+    def _summary_extra(self) -> dict[str, Any]:
+        plan = self.plan
+        return {
+            "seed": plan.seed,
+            "api_port_base": self.api_port_base,
+            "gcs_port": self.gcs_port,
+            "tick_hz": plan.tick_hz,
+            "physics_hz": plan.physics_hz,
+            "phase_every": plan.phase_every,
+        }
 
     def toggle_pause(self) -> None:
         """Pause or resume the clock (``harness run`` does this on SIGUSR1)."""
@@ -573,6 +585,8 @@ class Launcher:
                 for name, code in sup.poll_exits():
                     if name in ("autopilot", "network"):
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
+            if self._checkpoint is not None:
+                self._checkpoint.maybe()
             if plan.progress is not None and real_monotonic_ns() - last_progress > 500_000_000:
                 last_progress = real_monotonic_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
