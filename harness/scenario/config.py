@@ -21,6 +21,7 @@ from typing import Any
 from harness.autopilot.firmware import Firmware
 from harness.errors import ScenarioError
 from harness.scenario.launcher import LaunchPlan, MissionPlan
+from harness.scenario.limits import check_plan
 
 _TOP = {
     "seed",
@@ -248,7 +249,30 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         gcs_port=ctx.integer(mav.get("gcs_port", 14550), "mavlink.gcs_port", minimum=0),
     )
     fields = {k: v for k, v in overrides.items() if v is not None}
-    return _replace(plan, fields)
+    plan = _replace(plan, fields)
+    check_plan(plan, f"{path}: ", _PLAN_NAMES)
+    return plan
+
+
+_PLAN_NAMES = {
+    "physics_hz": "rates.physics_hz",
+    "tick_hz": "rates.tick_hz",
+    "phase_every": "rates.phase_every",
+    "stall_timeout_s": "channel.stall_timeout_s",
+    "lat_deg": "world.lat_deg",
+    "lon_deg": "world.lon_deg",
+    "alt_amsl_m": "world.alt_amsl_m",
+    "north_m_s": "wind.north_m_s",
+    "east_m_s": "wind.east_m_s",
+    "down_m_s": "wind.down_m_s",
+    "turbulence": "wind.turbulence",
+    "network": "network.model",
+    "api_port_base": "mavlink.api_port_base",
+    "gcs_port": "mavlink.gcs_port",
+    "tcp_port_base": "--tcp-port-base",
+    "view_port": "--view-port",
+}
+"""The scenario file's name of a LaunchPlan field, for error messages (the rest have the same name)."""
 
 
 def _gps_profile(ctx: _Ctx, value: Any) -> str:

@@ -32,6 +32,7 @@ from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
 from harness.record.status import Checkpoint, write_json
+from harness.scenario.limits import check_plan
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
@@ -227,8 +228,7 @@ class Launcher:
     """Runs one plan. ``run()`` returns the result; the summary is written in any case."""
 
     def __init__(self, plan: LaunchPlan) -> None:
-        if plan.vehicles < 1:
-            raise ScenarioError(f"a run needs at least one vehicle, got {plan.vehicles}")
+        check_plan(plan)  # every setting within its bounds before anything starts (limits.py)
         self.plan = plan
         plan.out.mkdir(parents=True, exist_ok=True)
         self.epoch_ns = real_time_ns() // NS_PER_S * NS_PER_S
