@@ -38,9 +38,12 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
 
 
 def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
+    from harness.secrets import channel_secret
     from harness.simclock.channel import Channel, ChannelConfig
 
-    secret = (a.secret or os.environ.get("HARNESS_CHANNEL_SECRET") or "").encode() or None
+    if a.secret:
+        print("harness channel: --secret shows in ps; prefer --secret-file or $HARNESS_SECRET", file=sys.stderr)
+    secret = channel_secret(a.secret, a.secret_file)
     cfg = ChannelConfig(
         address=a.listen,
         name=a.name,
@@ -93,6 +96,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             speed=a.speed,
             duration_s=a.duration,
             network=a.network,
+            signing_key_file=a.signing_key_file,
             progress=None if getattr(a, "no_progress", False) else _progress_printer(),
             **_firmware_options(a),
         )
@@ -118,6 +122,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             progress=None if getattr(a, "no_progress", False) else _progress_printer(),
             pause_at_s=a.pause_at,
             pause_wall_s=a.pause_for,
+            signing_key_file=a.signing_key_file,
             **_firmware_options(a),
         )
     )
@@ -132,6 +137,7 @@ _CLI_NAMES = {
     "view_port": "--view-port",
     "pause_at_s": "--pause-at",
     "pause_wall_s": "--pause-for",
+    "signing_key_file": "--signing-key-file",
 }
 
 
@@ -436,6 +442,13 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         "--set", action="append", default=[], metavar="PATH=VALUE", help="change a scenario-file value (TOML)"
     )
     r.add_argument("--no-progress", action="store_true", help="no progress line on stderr (batch use)")
+    r.add_argument(
+        "--signing-key-file",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="MAVLink 2 signing on every link: a file with the 32-byte key as 64 hex characters",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -500,7 +513,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--listen", default="tcp://127.0.0.1:5760")
     c.add_argument("--parent", default=None, help="parent channel address: run as a child")
     c.add_argument("--name", default="channel")
-    c.add_argument("--secret", default=None, help="shared secret (or $HARNESS_CHANNEL_SECRET)")
+    c.add_argument("--secret-file", default=None, metavar="PATH", help="file holding the shared secret")
+    c.add_argument(
+        "--secret", default=None, help="shared secret (shows in ps: prefer --secret-file or $HARNESS_SECRET)"
+    )
     c.add_argument("--tick-hz", type=ct.rate, default=250.0)
     c.add_argument("--phase-every", type=ct.count, default=5)
     c.add_argument("--stall-timeout", type=ct.wait, default=10.0)

@@ -44,7 +44,7 @@ _SECTIONS: dict[str, set[str]] = {
     "sensors": {"gps", "noise"},
     "network": {"model", "params"},
     "channel": {"stall_timeout_s"},
-    "mavlink": {"api_port_base", "gcs_port"},
+    "mavlink": {"api_port_base", "gcs_port", "signing_key_file"},
 }
 _VEHICLES_TABLE = {"count", "mission", "args", "spawn", "spacing_m", "params", "firmware"}
 _VEHICLE = {"mission", "args", "spawn_ned_m", "params", "firmware"}
@@ -96,6 +96,12 @@ class _Ctx:
         if not path.is_file():
             raise self.fail(field, f"file {value} does not exist (looked in {path.parent})")
         return path
+
+    def file_path(self, value: Any, field: str) -> Path:
+        """A path given in the file, relative to the file's directory."""
+        if not isinstance(value, str) or not value:
+            raise self.fail(field, f"expected a path, got {value!r}")
+        return (self.path.parent / value).resolve()
 
     def args(self, value: Any, field: str) -> tuple[str, ...]:
         if not isinstance(value, list) or not all(isinstance(a, str | int | float) for a in value):
@@ -247,6 +253,9 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         firmware=firmware,
         api_port_base=ctx.integer(mav.get("api_port_base", 14580), "mavlink.api_port_base", minimum=1),
         gcs_port=ctx.integer(mav.get("gcs_port", 14550), "mavlink.gcs_port", minimum=0),
+        signing_key_file=ctx.file_path(mav["signing_key_file"], "mavlink.signing_key_file")
+        if "signing_key_file" in mav
+        else None,
     )
     fields = {k: v for k, v in overrides.items() if v is not None}
     plan = _replace(plan, fields)
@@ -271,6 +280,7 @@ _PLAN_NAMES = {
     "gcs_port": "mavlink.gcs_port",
     "tcp_port_base": "--tcp-port-base",
     "view_port": "--view-port",
+    "signing_key_file": "mavlink.signing_key_file",
 }
 """The scenario file's name of a LaunchPlan field, for error messages (the rest have the same name)."""
 

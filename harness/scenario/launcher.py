@@ -96,6 +96,9 @@ class LaunchPlan:
     tcp_port_step: int = 1
     gcs_extra_ports: tuple[int, ...] = ()
     """More UDP outputs of ArduPilot vehicles (``harness sitl``: 14551, beside the GCS port 14550)."""
+    signing_key_file: Path | None = None
+    """MAVLink 2 signing on every link (64 hex characters in the file): unsigned frames are obeyed only from this
+    run's own processes (``docs/mavlink.md``, "Signing")."""
 
     def firmware_of(self, vehicle: int) -> Firmware:
         return firmware_of(self.firmware, vehicle)
@@ -401,6 +404,7 @@ class Launcher:
         ports = PortsConfig(
             api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
         )
+        signing, trust = self._signing()
         hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
         handles: list[Any] = []
         try:
@@ -409,7 +413,7 @@ class Launcher:
                 vp = vehicle_ports(
                     ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports, self._tcp_sim_clients
                 )
-                handles.append(attach_mavlink(ap, vp, plan.out, None, hub, fw))
+                handles.append(attach_mavlink(ap, vp, plan.out, signing, hub, fw, trust))
         except Exception as exc:
             for h in handles:
                 h.close()
@@ -421,6 +425,17 @@ class Launcher:
 
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
         return handles
+
+    def _signing(self) -> tuple[Any, Any]:
+        """The signing configuration and who may send unsigned frames: processes under this one (its missions)."""
+        from harness.autopilot.mavlink.codec import SigningConfig
+        from harness.autopilot.mavlink.runlocal import RunLocalPeers
+        from harness.secrets import read_signing_key
+
+        path = self.plan.signing_key_file
+        if path is None:
+            return None, None
+        return SigningConfig(read_signing_key(path, "signing_key_file")), RunLocalPeers(os.getpid())
 
     def _start_children(self, sup: Any, address: str) -> None:
         plan = self.plan
@@ -459,6 +474,11 @@ class Launcher:
                     "--gcs-extra-ports",
                     ",".join(str(p) for p in plan.gcs_extra_ports),
                     *(["--tcp-sim-clients"] if self._tcp_sim_clients else []),
+                    *(  # the key's file, never the key: argv is public (ps)
+                        ["--signing-key-file", str(plan.signing_key_file.resolve()), "--trust-run", str(os.getpid())]
+                        if plan.signing_key_file is not None
+                        else []
+                    ),
                 ],
                 env=env,
             )

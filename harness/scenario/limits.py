@@ -158,6 +158,10 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
     if plan.autopilots not in ("in-process", "process"):
         raise c.fail("autopilots", f"must be 'in-process' or 'process', got {plan.autopilots!r}")
     check_network(plan.network, plan.network_params, c)
+    if plan.signing_key_file is not None:
+        from harness.secrets import read_signing_key
+
+        read_signing_key(plan.signing_key_file, f"{prefix}{c.names.get('signing_key_file', 'signing_key_file')}")
 
 
 def check_network(model: str, params: Mapping[str, object], c: _Checker) -> None:
