@@ -281,6 +281,8 @@ _PLAN_NAMES = {
     "tcp_port_base": "--tcp-port-base",
     "view_port": "--view-port",
     "signing_key_file": "mavlink.signing_key_file",
+    "params": "vehicles.params",
+    "spawn_ned_m": "vehicles",
 }
 """The scenario file's name of a LaunchPlan field, for error messages (the rest have the same name)."""
 

@@ -17,7 +17,8 @@ The numbers and why:
 - **durations**: finite and > 0; ``duration_s`` at least one tick and at most 10⁹ s (sim time is an int64 of
   nanoseconds); watchdog and pause times at most a day (86 400 s).
 - **world**: latitude ±90°, longitude ±180°, altitude −500–10 000 m; wind components ±100 m/s, turbulence
-  0–30 m/s.
+  0–30 m/s; every vehicle starts within 100 km of the origin (and 1 km up or down).
+- **vehicle parameters**: known names, values within each parameter's range (what the autopilot enforces).
 - **network parameters**: the keys and values the chosen model declares (``RadioConfig`` / ``Ns3Config``),
   checked here without importing ns-3.
 """
@@ -40,6 +41,7 @@ MAX_DURATION_S = 1e9
 MAX_WAIT_S = 86_400.0
 PHYSICS_HZ = (10.0, 100_000.0)
 MAX_PHASE_PERIOD_S = 10.0
+MAX_SPAWN_M = 100_000.0
 
 BASE_MB = 140
 """``harness run`` itself (Python, JSBSim, recorder) with one vehicle: 131 MB peak RSS measured."""
@@ -157,11 +159,46 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
         c.port_block("view_port", plan.view_port, 1)
     if plan.autopilots not in ("in-process", "process"):
         raise c.fail("autopilots", f"must be 'in-process' or 'process', got {plan.autopilots!r}")
+    check_spawns(plan, c)
+    check_params(plan, c)
     check_network(plan.network, plan.network_params, c)
     if plan.signing_key_file is not None:
         from harness.secrets import read_signing_key
 
         read_signing_key(plan.signing_key_file, f"{prefix}{c.names.get('signing_key_file', 'signing_key_file')}")
+
+
+def check_spawns(plan: LaunchPlan, c: _Checker) -> None:
+    for i, spawn in enumerate(plan.spawn_ned_m or ()):
+        if (
+            not all(math.isfinite(x) for x in spawn)
+            or math.hypot(spawn[0], spawn[1]) > MAX_SPAWN_M
+            or abs(spawn[2]) > 1000
+        ):
+            raise c.fail(
+                "spawn_ned_m",
+                f"vehicle {i} would start at {spawn} m, more than {MAX_SPAWN_M / 1000:g} km from the origin "
+                "or 1 km above or below it",
+            )
+
+
+def check_params(plan: LaunchPlan, c: _Checker) -> None:
+    """Each vehicle's parameter overrides: known names, values in their ranges (as the autopilot applies them)."""
+    from harness.autopilot.firmware import firmware_of
+    from harness.autopilot.mavlink.personality import core_param_defaults
+    from harness.autopilot.params import Params
+
+    checked: set[tuple[str, frozenset[tuple[str, float]]]] = set()
+    for i, overrides in enumerate(plan.params[: plan.vehicles]):
+        fw = firmware_of(plan.firmware, i)
+        key = (fw.value, frozenset(overrides.items()))
+        if not overrides or key in checked:
+            continue
+        checked.add(key)
+        try:
+            Params(overrides={**core_param_defaults(fw), **overrides})
+        except ScenarioError as exc:
+            raise c.fail("params", f"vehicle {i}: {exc}") from None
 
 
 def check_network(model: str, params: Mapping[str, object], c: _Checker) -> None:

@@ -53,6 +53,19 @@ def _processes_of(run_dir: Path) -> list[int]:
 
 SCENARIOS = [
     (
+        "[vehicles]\ncount = 2\nparams = { MPC_XY_VEL_MAX = 1e30 }",
+        "vehicles.params: vehicle 0: parameter override MPC_XY_VEL_MAX=1e+30: MPC_XY_VEL_MAX=1e+30 outside [0, 20]",
+    ),
+    (
+        "[[vehicles]]\n[[vehicles]]\nparams = { NOPE_X = 1 }",
+        "vehicles.params: vehicle 1: parameter override NOPE_X=1.0: unknown parameter 'NOPE_X'",
+    ),
+    (
+        "[vehicles]\ncount = 2\nspacing_m = 1e300",
+        "vehicles: vehicle 1 would start at (0.0, 1e+300, 0.0) m, more than 100 km from the origin or 1 km above "
+        "or below it",
+    ),
+    (
         "vehicles = 100000",
         "vehicles: must be 1-244 (vehicle i is MAVLink system id i + 1; 245 and 255 are ground stations), got 100000",
     ),
