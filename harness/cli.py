@@ -396,6 +396,12 @@ def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
         return 0
     for path in make_plots(Path(a.dir)):
         print(path)
+    if (Path(a.dir) / "summary.json").is_file():
+        from harness.record.status import KILLED, read_summary
+
+        summary = read_summary(Path(a.dir))
+        if summary.get("status") == KILLED:
+            print(f"note: {summary['message']}", file=sys.stderr)
     return 0
 
 

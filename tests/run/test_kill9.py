@@ -76,6 +76,7 @@ def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_
         [sys.executable, "-m", "harness.cli", "plot", str(out)], capture_output=True, text=True, timeout=120
     )
     assert plot.returncode == 0, plot.stderr
+    assert "the run did not finish" in plot.stderr
     pngs = sorted(p.name for p in out.glob("*.png"))
     assert "trajectories.png" in pngs and len(pngs) >= 2, pngs
     assert "did not finish" in (out / "index.html").read_text()
