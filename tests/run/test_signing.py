@@ -22,6 +22,7 @@ from .test_run import ROOT, harness
 
 pytestmark = pytest.mark.sim
 PYMAVLINK_TAKEOFF = ROOT / "missions" / "pymavlink_takeoff.py"
+HOVER_DRONEKIT = ROOT / "missions" / "hover_dronekit.py"
 ARMED = mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 PREARM_OK = mavutil.mavlink.MAV_SYS_STATUS_PREARM_CHECK
 
@@ -160,15 +161,23 @@ sys.exit(Launcher(plan).run().exit_code)
 """
 
 
-@pytest.mark.parametrize("autopilots", ["in-process", "process"])
-def test_missions_of_the_run_fly_unsigned_and_no_secret_is_in_any_argv(tmp_path: Path, autopilots: str) -> None:
+@pytest.mark.parametrize(
+    ("autopilots", "firmware"),
+    [("in-process", "px4"), ("process", "px4"), ("in-process", "ardupilot")],
+    ids=["in-process", "autopilot-process", "ardupilot-dronekit-tcp"],
+)
+def test_missions_of_the_run_fly_unsigned_and_no_secret_is_in_any_argv(
+    tmp_path: Path, autopilots: str, firmware: str
+) -> None:
     key_file, key = _key(tmp_path)
     out = tmp_path / "run"
-    if autopilots == "in-process":
+    common = ["--network", "builtin", "--signing-key-file", str(key_file), "--out", str(out), "--no-progress"]
+    if firmware == "ardupilot":  # DroneKit over SERIAL0 (TCP): the run's own TCP client is obeyed unsigned
         proc = harness(
-            "run", "--mission", str(PYMAVLINK_TAKEOFF), "--network", "builtin", "--signing-key-file", str(key_file),
-            "--out", str(out), "--duration", "120", "--no-progress",
-        )  # fmt: skip
+            "run", "--firmware", "ardupilot", "--mission", str(HOVER_DRONEKIT), *common, "--duration", "120", "--", "3"
+        )
+    elif autopilots == "in-process":
+        proc = harness("run", "--mission", str(PYMAVLINK_TAKEOFF), *common, "--duration", "120")
     else:
         proc = subprocess.Popen(
             [
@@ -183,19 +192,23 @@ def test_missions_of_the_run_fly_unsigned_and_no_secret_is_in_any_argv(tmp_path:
             stderr=subprocess.PIPE,
             text=True,
         )
-    seen = _watch_argv(proc, 150)
-    _stdout, stderr = proc.communicate(timeout=30)
+    try:
+        seen = _watch_argv(proc, 200)
+        _stdout, stderr = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
     names = {b" ".join(argv.split(b"\0")[:4]) for argv in seen.values()}
     assert any(b"mission" in n for n in names) and any(b"harness.net.subscriber" in n for n in names), names
     if autopilots == "process":
         assert any(b"harness.autopilot.sitl" in n for n in names), names
     for pid, argv in seen.items():
         assert key.hex().encode() not in argv.lower() and key not in argv, f"process {pid} has the key in argv"
-    # the mission (pymavlink, knows no key) armed, took off and landed: the run's own processes are obeyed
+    # the mission (pymavlink or DroneKit, knows no key) armed, took off and landed: the run's processes are obeyed
     summary = read_summary(out)
     assert proc.returncode == 0 and summary["status"] == "ok", (summary.get("message"), stderr[-2000:])
     assert summary["vehicles"][0]["max_altitude_m"] > 2.0 and summary["vehicles"][0]["landed"]
-    assert "armed" in (out / "mission-0.stdout").read_text()
 
 
 def test_run_local_peers_trust_only_sockets_of_the_run(tmp_path: Path) -> None:
