@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -80,3 +81,13 @@ def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_
     pngs = sorted(p.name for p in out.glob("*.png"))
     assert "trajectories.png" in pngs and len(pngs) >= 2, pngs
     assert "did not finish" in (out / "index.html").read_text()
+
+    # world.rrd (when Rerun is installed) streams: its reader gets the track up to about the same time
+    if (out / "world.rrd").is_file():
+        from tests.view.test_rrd import read_rrd
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "RRD file has no footer": a killed run's file, read as a stream
+            rrd = read_rrd(out / "world.rrd")
+        times = rrd["/world/vehicle/0"]["sim_time"]
+        assert times and max(times) >= summary["sim_time_s"] - 2.0, (max(times or [0]), summary["sim_time_s"])
