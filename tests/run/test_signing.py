@@ -207,7 +207,8 @@ def test_missions_of_the_run_fly_unsigned_and_no_secret_is_in_any_argv(
         assert key.hex().encode() not in argv.lower() and key not in argv, f"process {pid} has the key in argv"
     # the mission (pymavlink or DroneKit, knows no key) armed, took off and landed: the run's processes are obeyed
     summary = read_summary(out)
-    assert proc.returncode == 0 and summary["status"] == "ok", (summary.get("message"), stderr[-2000:])
+    mission = (out / "mission-0.stdout").read_text() + (out / "mission-0.stderr").read_text()
+    assert proc.returncode == 0 and summary["status"] == "ok", (summary.get("message"), stderr[-1000:], mission[-2000:])
     assert summary["vehicles"][0]["max_altitude_m"] > 2.0 and summary["vehicles"][0]["landed"]
 
 
