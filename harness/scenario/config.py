@@ -21,7 +21,7 @@ from typing import Any
 from harness.autopilot.firmware import Firmware
 from harness.errors import ScenarioError
 from harness.scenario.launcher import LaunchPlan, MissionPlan
-from harness.scenario.limits import check_plan
+from harness.scenario.limits import check_plan, vehicle_count_error
 
 _TOP = {
     "seed",
@@ -83,6 +83,14 @@ class _Ctx:
         if minimum is not None and value < minimum:
             raise self.fail(field, f"must be >= {minimum}, got {value}")
         return value
+
+    def count(self, value: Any, field: str) -> int:
+        """A vehicle count, refused before anything is laid out for it (``limits.py``)."""
+        n = self.integer(value, field, minimum=1)
+        why = vehicle_count_error(n)
+        if why is not None:
+            raise self.fail(field, why)
+        return n
 
     def table(self, value: Any, field: str) -> dict[str, Any]:
         if not isinstance(value, dict):
@@ -317,11 +325,11 @@ def _vehicles(
     if raw is None:
         raise ctx.fail("vehicles", "missing: give vehicles = N, a [vehicles] table with count, or [[vehicles]] entries")
     if isinstance(raw, bool | int):
-        count = ctx.integer(raw, "vehicles", minimum=1)
+        count = ctx.count(raw, "vehicles")
         return [None] * count, _spawn_layout("grid", count, 5.0), [{}] * count
     if isinstance(raw, dict):
         ctx.keys(raw, _VEHICLES_TABLE, "vehicles.")
-        count = ctx.integer(raw.get("count", 1), "vehicles.count", minimum=1)
+        count = ctx.count(raw.get("count", 1), "vehicles.count")
         mission = (
             MissionPlan(ctx.mission(raw["mission"], "vehicles.mission"), ctx.args(raw.get("args", []), "vehicles.args"))
             if "mission" in raw
@@ -336,6 +344,7 @@ def _vehicles(
     if isinstance(raw, list):
         if not raw:
             raise ctx.fail("vehicles", "the list is empty: a run needs at least one vehicle")
+        ctx.count(len(raw), "vehicles")
         missions: list[MissionPlan | None] = []
         spawns: list[tuple[float, float, float]] = []
         per_vehicle: list[dict[str, float]] = []

@@ -239,8 +239,8 @@ class Launcher:
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
         self._aps: dict[int, Any] = {}
-        self._checkpoint: Checkpoint | None = None
         """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
+        self._checkpoint: Checkpoint | None = None
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
         self._tcp_sim_clients = plan.api_remote_base == 0

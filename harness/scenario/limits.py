@@ -74,6 +74,13 @@ def lowest_port() -> int:
     return 1 if os.geteuid() == 0 else 1024
 
 
+def vehicle_count_error(n: object) -> str | None:
+    """What is wrong with ``n`` as a vehicle count, or None (the scenario loader asks before laying them out)."""
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_VEHICLES:
+        return f"must be 1-{MAX_VEHICLES} (vehicle i is MAVLink system id i + 1; 245 and 255 are ground stations), got {n!r}"
+    return None
+
+
 class _Checker:
     def __init__(self, prefix: str, names: Mapping[str, str]) -> None:
         self.prefix = prefix
@@ -108,12 +115,9 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
     the name the user gave it (``{"tick_hz": "rates.tick_hz"}``), ``prefix`` names the file."""
     c = _Checker(prefix, names or {})
     n = plan.vehicles
-    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_VEHICLES:
-        raise c.fail(
-            "vehicles",
-            f"must be 1-{MAX_VEHICLES} (vehicle i is MAVLink system id i + 1; 245 and 255 are ground stations), "
-            f"got {n!r}",
-        )
+    why = vehicle_count_error(n)
+    if why is not None:
+        raise c.fail("vehicles", why)
     missions = sum(1 for m in plan.missions[:n] if m is not None)
     need, have = memory_estimate_mb(n, missions, plan.network != "none"), available_memory_mb()
     if have is not None and need > have:

@@ -140,13 +140,15 @@ def _argv_of_children(root: int) -> dict[int, bytes]:
     return out
 
 
-def _watch_argv(proc: subprocess.Popen[str], seconds: float) -> dict[int, bytes]:
-    seen: dict[int, bytes] = {}
+def _watch_argv(proc: subprocess.Popen[str], seconds: float) -> set[tuple[int, bytes]]:
+    """Every (pid, command line) seen under ``proc`` while it runs (a child shows its parent's command line
+    between fork and exec, then its own)."""
+    seen: set[tuple[int, bytes]] = set()
     end = time.monotonic() + seconds
     while time.monotonic() < end and proc.poll() is None:
         for pid, argv in _argv_of_children(proc.pid).items():
             if argv:  # a process that has exited (a zombie) shows an empty command line
-                seen.setdefault(pid, argv)
+                seen.add((pid, argv))
         time.sleep(0.2)
     return seen
 
@@ -199,11 +201,11 @@ def test_missions_of_the_run_fly_unsigned_and_no_secret_is_in_any_argv(
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    names = {b" ".join(argv.split(b"\0")[:4]) for argv in seen.values()}
+    names = {b" ".join(argv.split(b"\0")[:4]) for _, argv in seen}
     assert any(b"mission" in n for n in names) and any(b"harness.net.subscriber" in n for n in names), names
     if autopilots == "process":
         assert any(b"harness.autopilot.sitl" in n for n in names), names
-    for pid, argv in seen.items():
+    for pid, argv in seen:
         assert key.hex().encode() not in argv.lower() and key not in argv, f"process {pid} has the key in argv"
     # the mission (pymavlink or DroneKit, knows no key) armed, took off and landed: the run's processes are obeyed
     summary = read_summary(out)
