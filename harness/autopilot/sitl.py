@@ -32,7 +32,7 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.runlocal import RunLocalPeers
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
-from harness.errors import HarnessError, ScenarioError
+from harness.errors import HarnessError
 from harness.secrets import read_signing_key
 from harness.simclock.clock import real_time_ns
 
@@ -163,9 +163,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             SigningConfig(read_signing_key(a.signing_key_file, "--signing-key-file")) if a.signing_key_file else None
         )
         extra = tuple(int(p) for p in a.gcs_extra_ports.split(",") if p.strip())
+        firmwares = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
     except (ValueError, json.JSONDecodeError) as exc:
-        raise ScenarioError(f"autopilot process: bad argument: {exc}") from None
-    firmwares = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
+        log.error("autopilot process: bad argument: %s", exc)
+        return 2
+    except HarnessError as exc:  # a bad signing key file, an unknown firmware: one line, no traceback
+        log.error("autopilot process: %s", exc)
+        return 2
     base = PortsConfig(api_port_base=a.api_port_base, api_local_port_base=a.api_local_port_base, gcs_port=a.gcs_port)
     trust = RunLocalPeers(a.trust_run) if a.trust_run else None
     hub = MavlinkHub().start()
