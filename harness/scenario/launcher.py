@@ -384,6 +384,7 @@ class Launcher:
         from harness.autopilot.autopilot import Autopilot, AutopilotConfig
         from harness.autopilot.mavlink.hub import MavlinkHub
         from harness.autopilot.mavlink.personality import core_param_defaults
+        from harness.autopilot.mavlink.runlocal import run_signing
         from harness.autopilot.mavlink.transport import PortsConfig
         from harness.autopilot.sitl import attach_mavlink, vehicle_ports
 
@@ -404,7 +405,7 @@ class Launcher:
         ports = PortsConfig(
             api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
         )
-        signing, trust = self._signing()
+        signing, trust = run_signing(plan.signing_key_file, os.getpid())  # unsigned: only this run's processes
         hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
         handles: list[Any] = []
         try:
@@ -425,17 +426,6 @@ class Launcher:
 
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
         return handles
-
-    def _signing(self) -> tuple[Any, Any]:
-        """The signing configuration and who may send unsigned frames: processes under this one (its missions)."""
-        from harness.autopilot.mavlink.codec import SigningConfig
-        from harness.autopilot.mavlink.runlocal import RunLocalPeers
-        from harness.secrets import read_signing_key
-
-        path = self.plan.signing_key_file
-        if path is None:
-            return None, None
-        return SigningConfig(read_signing_key(path, "signing_key_file")), RunLocalPeers(os.getpid())
 
     def _start_children(self, sup: Any, address: str) -> None:
         plan = self.plan

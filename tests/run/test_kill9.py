@@ -18,7 +18,7 @@ from harness.record.status import read_summary
 from tests.run.test_run import ROOT, harness, pids_with_run_dir
 
 pytestmark = pytest.mark.sim
-PYMAVLINK_TAKEOFF = ROOT / "missions" / "pymavlink_takeoff.py"
+HOVER = ROOT / "missions" / "hover.py"
 
 
 def _running_sim_time(out: Path) -> float:
@@ -31,13 +31,14 @@ def _running_sim_time(out: Path) -> float:
 
 def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    proc = harness("run", "--vehicles", "1", "--mission", str(PYMAVLINK_TAKEOFF), "--out", str(out), "--speed", "2")
+    # a mission that flies for minutes: the run is killed in the middle, however slow the machine
+    proc = harness("run", "--vehicles", "1", "--mission", str(HOVER), "--out", str(out), "--speed", "2", "--", "300")
     try:
-        deadline = time.monotonic() + 90
-        while time.monotonic() < deadline and _running_sim_time(out) < 10.0:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and _running_sim_time(out) < 15.0:
             assert proc.poll() is None, proc.communicate()
             time.sleep(0.2)
-        assert _running_sim_time(out) >= 10.0, "the run never recorded 10 s of sim time"
+        assert _running_sim_time(out) >= 15.0, "the run never recorded 15 s of sim time"
         assert pids_with_run_dir(out), "the mission process runs"
         proc.send_signal(signal.SIGKILL)
         proc.communicate(timeout=10)
@@ -53,7 +54,7 @@ def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_
     # the run directory says the run did not finish, with the sim time it reached
     summary = read_summary(out)
     assert summary["status"] == "killed" and summary["finished"] is False
-    assert summary["sim_time_s"] >= 10.0 and "did not finish" in summary["message"]
+    assert summary["sim_time_s"] >= 15.0 and "did not finish" in summary["message"]
     raw = json.loads((out / "summary.json").read_text())
     assert raw["status"] == "running"  # what was on disk: read_summary tells that the process is gone
 

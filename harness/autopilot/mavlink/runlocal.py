@@ -17,6 +17,8 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
+from harness.autopilot.mavlink.codec import SigningConfig
+from harness.secrets import read_signing_key
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns
 
 Address = tuple[str, int]
@@ -148,3 +150,11 @@ class RunLocalPeers:
             self._trusted_inodes.clear()
         self._cache[key] = (verdict, now + int(ttl * NS_PER_S))
         return verdict
+
+
+def run_signing(key_file: Path | None, run_pid: int) -> tuple[SigningConfig | None, RunLocalPeers | None]:
+    """A run's signing configuration (None without a key file) and who may still send unsigned frames: the
+    processes under ``run_pid``."""
+    if key_file is None:
+        return None, None
+    return SigningConfig(read_signing_key(key_file, "signing_key_file")), RunLocalPeers(run_pid)
