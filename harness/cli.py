@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from harness import cli_types as ct
 from harness.errors import HarnessError, ScenarioError
 
 if TYPE_CHECKING:
@@ -37,9 +38,12 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
 
 
 def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
+    from harness.secrets import channel_secret
     from harness.simclock.channel import Channel, ChannelConfig
 
-    secret = (a.secret or os.environ.get("HARNESS_CHANNEL_SECRET") or "").encode() or None
+    if a.secret:
+        print("harness channel: --secret shows in ps; prefer --secret-file or $HARNESS_SECRET", file=sys.stderr)
+    secret = channel_secret(a.secret, a.secret_file)
     cfg = ChannelConfig(
         address=a.listen,
         name=a.name,
@@ -63,18 +67,6 @@ def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
         print(f"run failed: {ch.failure}", file=sys.stderr)
         return 1
     return 0
-
-
-def _speed(text: str) -> float | None:
-    if text == "max":
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--speed must be 'max' or a positive number, got {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"--speed must be 'max' or a positive number, got {text!r}")
-    return value
 
 
 def _progress_printer() -> Callable[[str], None]:
@@ -104,6 +96,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             speed=a.speed,
             duration_s=a.duration,
             network=a.network,
+            signing_key_file=a.signing_key_file,
             progress=None if getattr(a, "no_progress", False) else _progress_printer(),
             **_firmware_options(a),
         )
@@ -115,23 +108,45 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         if not m.script.is_file():
             raise ScenarioError(f"--mission {m.script}: the file does not exist")
     vehicles = a.vehicles if a.vehicles is not None else max(1, len(missions))
-    if vehicles < 1:
-        raise ScenarioError(f"--vehicles must be >= 1, got {vehicles}")
     if len(missions) == 1 and vehicles > 1:
         missions = missions * vehicles  # one script flies every vehicle
-    return LaunchPlan(
-        vehicles=vehicles,
-        out=Path(a.out) if a.out else Path("runs") / time.strftime("%Y%m%d-%H%M%S"),
-        missions=tuple(missions),
-        seed=a.seed or 0,
-        speed=a.speed,
-        duration_s=a.duration,
-        network=a.network or "none",
-        progress=None if getattr(a, "no_progress", False) else _progress_printer(),
-        pause_at_s=a.pause_at,
-        pause_wall_s=a.pause_for,
-        **_firmware_options(a),
+    return _checked(
+        LaunchPlan(
+            vehicles=vehicles,
+            out=Path(a.out) if a.out else Path("runs") / time.strftime("%Y%m%d-%H%M%S"),
+            missions=tuple(missions),
+            seed=a.seed or 0,
+            speed=a.speed,
+            duration_s=a.duration,
+            network=a.network or "none",
+            progress=None if getattr(a, "no_progress", False) else _progress_printer(),
+            pause_at_s=a.pause_at,
+            pause_wall_s=a.pause_for,
+            signing_key_file=a.signing_key_file,
+            **_firmware_options(a),
+        )
     )
+
+
+_CLI_NAMES = {
+    "vehicles": "--vehicles",
+    "duration_s": "--duration",
+    "speed": "--speed",
+    "seed": "--seed",
+    "tcp_port_base": "--tcp-port-base",
+    "view_port": "--view-port",
+    "pause_at_s": "--pause-at",
+    "pause_wall_s": "--pause-for",
+    "signing_key_file": "--signing-key-file",
+}
+
+
+def _checked(plan: LaunchPlan) -> LaunchPlan:
+    """Every setting within its bounds (``scenario/limits.py``) before anything starts."""
+    from harness.scenario.limits import check_plan
+
+    check_plan(plan, "", _CLI_NAMES)
+    return plan
 
 
 def _firmware_options(a: argparse.Namespace) -> dict[str, Any]:
@@ -381,16 +396,22 @@ def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
         return 0
     for path in make_plots(Path(a.dir)):
         print(path)
+    if (Path(a.dir) / "summary.json").is_file():
+        from harness.record.status import KILLED, read_summary
+
+        summary = read_summary(Path(a.dir))
+        if summary.get("status") == KILLED:
+            print(f"note: {summary['message']}", file=sys.stderr)
     return 0
 
 
 def _add_run_options(r: argparse.ArgumentParser) -> None:
-    r.add_argument("--vehicles", type=int, default=None, help="number of vehicles (default: one per --mission)")
+    r.add_argument("--vehicles", type=ct.vehicles, default=None, help="number of vehicles (default: one per --mission)")
     r.add_argument("--mission", action="append", default=[], help="mission script (one: every vehicle flies it)")
-    r.add_argument("--speed", type=_speed, default=None, help="'max' (default) or a real-time factor")
-    r.add_argument("--duration", type=float, default=None, help="sim-time limit in seconds")
+    r.add_argument("--speed", type=ct.speed, default=None, help="'max' (default) or a real-time factor")
+    r.add_argument("--duration", type=ct.duration, default=None, help="sim-time limit in seconds")
     r.add_argument("--network", choices=["builtin", "ns3", "none"], default=None)
-    r.add_argument("--seed", type=int, default=None)
+    r.add_argument("--seed", type=ct.seed, default=None)
     r.add_argument("--out", default=None, help="run directory (default runs/<timestamp>)")
     r.add_argument("--plot", action="store_true", help="write plots into the run directory at the end")
     r.add_argument(
@@ -401,7 +422,7 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     )
     r.add_argument(
         "--tcp-port-base",
-        type=int,
+        type=ct.port,
         default=None,
         metavar="PORT",
         help="ArduPilot vehicles' SERIAL0 TCP ports (sitl: 5760 + 10 i; run: the run's own port block)",
@@ -414,19 +435,30 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         default=None,
         help="watch the run live in Rerun: the native viewer (default) or 'web' (serves the web viewer, prints its URL)",
     )
-    r.add_argument("--view-port", type=int, default=None, help="HTTP port of the web viewer (default: a free one)")
+    r.add_argument("--view-port", type=ct.port, default=None, help="HTTP port of the web viewer (default: a free one)")
     r.add_argument(
-        "--pause-at", type=float, default=None, metavar="SIM_S", help="stall test: stop the clock at this sim time"
+        "--pause-at",
+        type=ct.sim_time,
+        default=None,
+        metavar="SIM_S",
+        help="stall test: stop the clock at this sim time",
     )
-    r.add_argument("--pause-for", type=float, default=5.0, metavar="WALL_S", help="... for this long (wall seconds)")
+    r.add_argument("--pause-for", type=ct.wait, default=5.0, metavar="WALL_S", help="... for this long (wall seconds)")
     r.add_argument(
         "--set", action="append", default=[], metavar="PATH=VALUE", help="change a scenario-file value (TOML)"
     )
     r.add_argument("--no-progress", action="store_true", help="no progress line on stderr (batch use)")
+    r.add_argument(
+        "--signing-key-file",
+        type=Path,
+        default=None,
+        metavar="PATH",
+        help="MAVLink 2 signing on every link: a file with the 32-byte key as 64 hex characters",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="harness", description="Lockstep co-simulation of multirotor UAV swarms.")
+    ap = ct.OneLineParser(prog="harness", description="Lockstep co-simulation of multirotor UAV swarms.")
     ap.add_argument("-v", "--verbose", action="count", default=0)
     sub = ap.add_subparsers(dest="command", required=True)
 
@@ -449,7 +481,7 @@ def build_parser() -> argparse.ArgumentParser:
     vw = sub.add_parser("view", help="open a run's 3D view (world.rrd) in Rerun's viewer")
     vw.add_argument("dir", help="run directory (or a .rrd file)")
     vw.add_argument("--web", action="store_true", help="serve the web viewer instead and print its URL")
-    vw.add_argument("--port", type=int, default=None, help="HTTP port for --web (default: a free one)")
+    vw.add_argument("--port", type=ct.port, default=None, help="HTTP port for --web (default: a free one)")
     vw.set_defaults(func=_cmd_view)
 
     pl = sub.add_parser("plot", help="plots and an HTML page from a run directory")
@@ -476,7 +508,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     m = sub.add_parser("mission", help="run an unmodified script as a type-0 subscriber on the sim clock")
     m.add_argument("script")
-    m.add_argument("--vehicle", type=int, default=None, help="vehicle index (default $HARNESS_VEHICLE or 0)")
+    m.add_argument(
+        "--vehicle", type=ct.integer(0, 254), default=None, help="vehicle index (default $HARNESS_VEHICLE or 0)"
+    )
     m.add_argument("--channel", default=None, help="channel address (default $HARNESS_CHANNEL)")
     m.add_argument("--name", default=None)
     m.set_defaults(func=_cmd_mission)
@@ -485,10 +519,13 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--listen", default="tcp://127.0.0.1:5760")
     c.add_argument("--parent", default=None, help="parent channel address: run as a child")
     c.add_argument("--name", default="channel")
-    c.add_argument("--secret", default=None, help="shared secret (or $HARNESS_CHANNEL_SECRET)")
-    c.add_argument("--tick-hz", type=float, default=250.0)
-    c.add_argument("--phase-every", type=int, default=5)
-    c.add_argument("--stall-timeout", type=float, default=10.0)
+    c.add_argument("--secret-file", default=None, metavar="PATH", help="file holding the shared secret")
+    c.add_argument(
+        "--secret", default=None, help="shared secret (shows in ps: prefer --secret-file or $HARNESS_SECRET)"
+    )
+    c.add_argument("--tick-hz", type=ct.rate, default=250.0)
+    c.add_argument("--phase-every", type=ct.count, default=5)
+    c.add_argument("--stall-timeout", type=ct.wait, default=10.0)
     c.set_defaults(func=_cmd_channel)
     return ap
 

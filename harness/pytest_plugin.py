@@ -35,6 +35,7 @@ from typing import Any
 import pytest
 
 from harness.autopilot.mathutil import quat_to_euler
+from harness.record.status import read_summary
 from harness.record.world import read_topics
 from harness.sweep.results import RunStatus, read_results
 
@@ -107,7 +108,7 @@ class RunRecord:
 
     @cached_property
     def summary(self) -> dict[str, Any]:
-        return dict(json.loads((self.out / "summary.json").read_text()))
+        return read_summary(self.out)  # a killed run reads as status "killed"
 
     @cached_property
     def topics(self) -> dict[str, list[Any]]:

@@ -18,7 +18,7 @@ import json
 import logging
 import struct
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import BinaryIO
 
@@ -29,9 +29,11 @@ from harness.autopilot.mavlink.codec import SigningConfig
 from harness.autopilot.mavlink.hub import MavlinkHub
 from harness.autopilot.mavlink.param_store import persist_params
 from harness.autopilot.mavlink.personality import core_param_defaults
+from harness.autopilot.mavlink.runlocal import RunLocalPeers
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
-from harness.errors import HarnessError, ScenarioError
+from harness.errors import HarnessError
+from harness.secrets import read_signing_key
 from harness.simclock.clock import real_time_ns
 
 log = logging.getLogger(__name__)
@@ -83,15 +85,25 @@ def attach_mavlink(
     signing: SigningConfig | None,
     hub: MavlinkHub | None = None,
     firmware: Firmware = Firmware.PX4,
+    trust_unsigned: Callable[[bool, tuple[str, int]], bool] | None = None,
 ) -> _Attached:
     """The MAVLink server (and tlog, stored parameters) of ``ap``, served by ``hub`` (or a thread of its own),
-    presenting ``firmware``'s personality."""
+    presenting ``firmware``'s personality; with ``signing``, unsigned frames are obeyed only from peers
+    ``trust_unsigned`` accepts (the run's own processes, ``runlocal.py``)."""
     tlog = None
     if run_dir is not None:
         tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog")
         for refused in persist_params(ap.params, run_dir, ap.vehicle):
             log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
-    server = MavlinkServer(ap, ap.vehicle, ports, signing, tap=tlog.write if tlog else None, firmware=firmware)
+    server = MavlinkServer(
+        ap,
+        ap.vehicle,
+        ports,
+        signing,
+        tap=tlog.write if tlog else None,
+        firmware=firmware,
+        trust_unsigned=trust_unsigned,
+    )
     if hub is None:
         server.start()
     else:
@@ -130,7 +142,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--gcs-port", type=int, default=14550)
     ap.add_argument("--run-dir", type=Path, default=None, help="write vehicle-<i>.tlog here")
     ap.add_argument("--params", default="{}", help='JSON: {"<vehicle>": {"PARAM": value}}')
-    ap.add_argument("--signing-key", default=None, help="MAVLink 2 signing key (64 hex digits)")
+    ap.add_argument(
+        "--signing-key-file", type=Path, default=None, help="MAVLink 2 signing: file with the key as 64 hex digits"
+    )
+    ap.add_argument(
+        "--trust-run", type=int, default=0, metavar="PID", help="with signing: obey unsigned frames from PID's children"
+    )
     ap.add_argument("--ground-truth", action="store_true")
     ap.add_argument("--firmware", default="px4", help="px4 or ardupilot: one for all, or comma-separated per vehicle")
     ap.add_argument("--tcp-port-base", type=int, default=0, help="ArduPilot vehicles listen on TCP base + step*i")
@@ -142,12 +159,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         vehicles = [int(v) for v in a.vehicles.split(",") if v.strip()]
         overrides = {int(k): v for k, v in json.loads(a.params).items()}
-        signing = SigningConfig(bytes.fromhex(a.signing_key)) if a.signing_key else None
+        signing = (
+            SigningConfig(read_signing_key(a.signing_key_file, "--signing-key-file")) if a.signing_key_file else None
+        )
         extra = tuple(int(p) for p in a.gcs_extra_ports.split(",") if p.strip())
+        firmwares = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
     except (ValueError, json.JSONDecodeError) as exc:
-        raise ScenarioError(f"autopilot process: bad argument: {exc}") from None
-    firmwares = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
+        log.error("autopilot process: bad argument: %s", exc)
+        return 2
+    except HarnessError as exc:  # a bad signing key file, an unknown firmware: one line, no traceback
+        log.error("autopilot process: %s", exc)
+        return 2
     base = PortsConfig(api_port_base=a.api_port_base, api_local_port_base=a.api_local_port_base, gcs_port=a.gcs_port)
+    trust = RunLocalPeers(a.trust_run) if a.trust_run else None
     hub = MavlinkHub().start()
     try:
         run_autopilots(
@@ -172,6 +196,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 signing,
                 hub,
                 firmware_of(firmwares, autopilot.vehicle),
+                trust,
             ),
         )
     except HarnessError as exc:

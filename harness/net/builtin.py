@@ -88,8 +88,8 @@ class RadioConfig:
                 raise ScenarioError(f"network.params.{key}: unknown parameter (valid: {', '.join(sorted(known))})")
         values: dict[str, float | int] = {}
         for key, value in params.items():
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ScenarioError(f"network.params.{key}: expected a number, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ScenarioError(f"network.params.{key}: expected a finite number, got {value!r}")
             values[key] = int(value) if key in ("header_bytes", "queue_limit") else float(value)
         return cls(**values)  # type: ignore[arg-type]
 

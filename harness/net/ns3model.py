@@ -59,8 +59,8 @@ class Ns3Config:
         numbers = {}
         for key in ("tx_power_dbm", "path_loss_exponent"):
             value = params.get(key, getattr(cls, key))
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ScenarioError(f"network.params.{key}: expected a number, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ScenarioError(f"network.params.{key}: expected a finite number, got {value!r}")
             numbers[key] = float(value)
         return cls(standard, max_vehicles, **numbers)
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.errors import ScenarioError
+from harness.record.status import read_summary
 from harness.record.world import read_topics
 
 
@@ -121,7 +122,7 @@ def _save(fig: Any, path: Path) -> Path:
 
 def _html(run_dir: Path, images: list[Path]) -> Path:
     summary_path = run_dir / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    summary = read_summary(run_dir) if summary_path.is_file() else {}  # a killed run: status "killed"
     rows = "".join(
         f"<tr><td>{v['id']}</td><td>{html.escape(str(v.get('mission')))}</td><td>{v.get('mission_exit_code')}</td>"
         f"<td>{v.get('max_altitude_m', 0):.1f}</td><td>{[round(x, 1) for x in v.get('final_position_ned_m', [])]}</td>"
@@ -131,6 +132,7 @@ def _html(run_dir: Path, images: list[Path]) -> Path:
     head = (
         f"<p>status <b>{html.escape(str(summary.get('status', '?')))}</b>, sim {summary.get('sim_time_s', 0):.1f} s, "
         f"wall {summary.get('wall_time_s', 0):.1f} s, real-time factor {summary.get('real_time_factor', 0):.1f}</p>"
+        f"<p>{html.escape(str(summary.get('message') or ''))}</p>"
         if summary
         else ""
     )

@@ -5,9 +5,9 @@ Messages are JSON with JSON-Schema schemas, so Foxglove shows them: poses use th
 ``foxglove.LocationFix`` for the geodetic position. Log times are *sim* time in nanoseconds (since the
 run's epoch), so a recording replays at sim speed.
 
-Chunks are small and the file is flushed after each one, so a run stopped by Ctrl-C (which finishes
-the file) or killed (which leaves the chunks written so far, readable by a streaming reader) keeps
-what was recorded.
+The file is a valid MCAP file at every instant (``sealed.py``): a run stopped by Ctrl-C finishes it with its
+summary; a run killed with ``kill -9`` leaves every chunk written so far readable by ``mcap.reader.make_reader``
+— the run flushes the chunk in progress every second of wall time (:meth:`WorldRecorder.flush`).
 """
 
 from __future__ import annotations
@@ -15,11 +15,12 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import msgspec
 from mcap.writer import CompressionType, Writer
 
+from harness.record.sealed import SealedFile
 from harness.simclock.clock import NS_PER_S
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
@@ -99,8 +100,8 @@ class WorldRecorder:
     def __init__(self, path: Path, epoch_ns: int, n_vehicles: int) -> None:
         self.path = path
         self.epoch_ns = epoch_ns
-        self._file: BinaryIO = path.open("wb")
-        self._w = Writer(self._file, chunk_size=64 * 1024, compression=CompressionType.NONE)
+        self._file = SealedFile(path)
+        self._w = Writer(self._file, chunk_size=64 * 1024, compression=CompressionType.NONE)  # type: ignore[arg-type]
         self._w.start(profile="", library="uav-harness")
         schema = {
             name: self._w.register_schema(name=name, encoding="jsonschema", data=json.dumps(s).encode())
@@ -205,12 +206,15 @@ class WorldRecorder:
         self._put(self._event, t_ns, {"t_s": t_ns / NS_PER_S, "kind": kind, "detail": detail})
 
     def flush(self) -> None:
-        self._file.flush()
+        """The chunk in progress to disk (a valid file up to here, even if the process is killed next)."""
+        if not self.closed:
+            self._w.flush()
 
     def close(self) -> None:
         if self.closed:
             return
         self.closed = True
+        self._file.unseal()
         self._w.finish()
         self._file.close()
 

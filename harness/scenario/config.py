@@ -21,6 +21,7 @@ from typing import Any
 from harness.autopilot.firmware import Firmware
 from harness.errors import ScenarioError
 from harness.scenario.launcher import LaunchPlan, MissionPlan
+from harness.scenario.limits import check_plan, vehicle_count_error
 
 _TOP = {
     "seed",
@@ -43,7 +44,7 @@ _SECTIONS: dict[str, set[str]] = {
     "sensors": {"gps", "noise"},
     "network": {"model", "params"},
     "channel": {"stall_timeout_s"},
-    "mavlink": {"api_port_base", "gcs_port"},
+    "mavlink": {"api_port_base", "gcs_port", "signing_key_file"},
 }
 _VEHICLES_TABLE = {"count", "mission", "args", "spawn", "spacing_m", "params", "firmware"}
 _VEHICLE = {"mission", "args", "spawn_ned_m", "params", "firmware"}
@@ -83,6 +84,14 @@ class _Ctx:
             raise self.fail(field, f"must be >= {minimum}, got {value}")
         return value
 
+    def count(self, value: Any, field: str) -> int:
+        """A vehicle count, refused before anything is laid out for it (``limits.py``)."""
+        n = self.integer(value, field, minimum=1)
+        why = vehicle_count_error(n)
+        if why is not None:
+            raise self.fail(field, why)
+        return n
+
     def table(self, value: Any, field: str) -> dict[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(field, f"expected a table, got {type(value).__name__}")
@@ -95,6 +104,12 @@ class _Ctx:
         if not path.is_file():
             raise self.fail(field, f"file {value} does not exist (looked in {path.parent})")
         return path
+
+    def file_path(self, value: Any, field: str) -> Path:
+        """A path given in the file, relative to the file's directory."""
+        if not isinstance(value, str) or not value:
+            raise self.fail(field, f"expected a path, got {value!r}")
+        return (self.path.parent / value).resolve()
 
     def args(self, value: Any, field: str) -> tuple[str, ...]:
         if not isinstance(value, list) or not all(isinstance(a, str | int | float) for a in value):
@@ -246,9 +261,38 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         firmware=firmware,
         api_port_base=ctx.integer(mav.get("api_port_base", 14580), "mavlink.api_port_base", minimum=1),
         gcs_port=ctx.integer(mav.get("gcs_port", 14550), "mavlink.gcs_port", minimum=0),
+        signing_key_file=ctx.file_path(mav["signing_key_file"], "mavlink.signing_key_file")
+        if "signing_key_file" in mav
+        else None,
     )
     fields = {k: v for k, v in overrides.items() if v is not None}
-    return _replace(plan, fields)
+    plan = _replace(plan, fields)
+    check_plan(plan, f"{path}: ", _PLAN_NAMES)
+    return plan
+
+
+_PLAN_NAMES = {
+    "physics_hz": "rates.physics_hz",
+    "tick_hz": "rates.tick_hz",
+    "phase_every": "rates.phase_every",
+    "stall_timeout_s": "channel.stall_timeout_s",
+    "lat_deg": "world.lat_deg",
+    "lon_deg": "world.lon_deg",
+    "alt_amsl_m": "world.alt_amsl_m",
+    "north_m_s": "wind.north_m_s",
+    "east_m_s": "wind.east_m_s",
+    "down_m_s": "wind.down_m_s",
+    "turbulence": "wind.turbulence",
+    "network": "network.model",
+    "api_port_base": "mavlink.api_port_base",
+    "gcs_port": "mavlink.gcs_port",
+    "tcp_port_base": "--tcp-port-base",
+    "view_port": "--view-port",
+    "signing_key_file": "mavlink.signing_key_file",
+    "params": "vehicles.params",
+    "spawn_ned_m": "vehicles",
+}
+"""The scenario file's name of a LaunchPlan field, for error messages (the rest have the same name)."""
 
 
 def _gps_profile(ctx: _Ctx, value: Any) -> str:
@@ -281,11 +325,11 @@ def _vehicles(
     if raw is None:
         raise ctx.fail("vehicles", "missing: give vehicles = N, a [vehicles] table with count, or [[vehicles]] entries")
     if isinstance(raw, bool | int):
-        count = ctx.integer(raw, "vehicles", minimum=1)
+        count = ctx.count(raw, "vehicles")
         return [None] * count, _spawn_layout("grid", count, 5.0), [{}] * count
     if isinstance(raw, dict):
         ctx.keys(raw, _VEHICLES_TABLE, "vehicles.")
-        count = ctx.integer(raw.get("count", 1), "vehicles.count", minimum=1)
+        count = ctx.count(raw.get("count", 1), "vehicles.count")
         mission = (
             MissionPlan(ctx.mission(raw["mission"], "vehicles.mission"), ctx.args(raw.get("args", []), "vehicles.args"))
             if "mission" in raw
@@ -300,6 +344,7 @@ def _vehicles(
     if isinstance(raw, list):
         if not raw:
             raise ctx.fail("vehicles", "the list is empty: a run needs at least one vehicle")
+        ctx.count(len(raw), "vehicles")
         missions: list[MissionPlan | None] = []
         spawns: list[tuple[float, float, float]] = []
         per_vehicle: list[dict[str, float]] = []

@@ -31,6 +31,8 @@ from harness.autopilot.firmware import Firmware, firmware_of
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
+from harness.record.status import Checkpoint, write_json
+from harness.scenario.limits import check_plan
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
@@ -94,6 +96,9 @@ class LaunchPlan:
     tcp_port_step: int = 1
     gcs_extra_ports: tuple[int, ...] = ()
     """More UDP outputs of ArduPilot vehicles (``harness sitl``: 14551, beside the GCS port 14550)."""
+    signing_key_file: Path | None = None
+    """MAVLink 2 signing on every link (64 hex characters in the file): unsigned frames are obeyed only from this
+    run's own processes (``docs/mavlink.md``, "Signing")."""
 
     def firmware_of(self, vehicle: int) -> Firmware:
         return firmware_of(self.firmware, vehicle)
@@ -146,9 +151,7 @@ class RunResult:
 
 
 def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(result.to_json() | extra, indent=2))
-    os.replace(tmp, out / "summary.json")
+    write_json(out / "summary.json", result.to_json() | extra | {"finished": True})
 
 
 def _python() -> str:
@@ -228,8 +231,7 @@ class Launcher:
     """Runs one plan. ``run()`` returns the result; the summary is written in any case."""
 
     def __init__(self, plan: LaunchPlan) -> None:
-        if plan.vehicles < 1:
-            raise ScenarioError(f"a run needs at least one vehicle, got {plan.vehicles}")
+        check_plan(plan)  # every setting within its bounds before anything starts (limits.py)
         self.plan = plan
         plan.out.mkdir(parents=True, exist_ok=True)
         self.epoch_ns = real_time_ns() // NS_PER_S * NS_PER_S
@@ -238,6 +240,7 @@ class Launcher:
         self._pause_timer: threading.Timer | None = None
         self._aps: dict[int, Any] = {}
         """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
+        self._checkpoint: Checkpoint | None = None
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
         self._tcp_sim_clients = plan.api_remote_base == 0
@@ -282,6 +285,18 @@ class Launcher:
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         local: list[Any] = []
+        extra = self._summary_extra
+        self._checkpoint = Checkpoint(
+            plan.out,
+            lambda: (
+                RunResult(
+                    "running", phys.t_ns / NS_PER_S, (real_monotonic_ns() - wall0) / NS_PER_S, summaries, []
+                ).to_json()
+                | extra()
+            ),
+            world.mcap.flush,
+        )
+        self._checkpoint.write()
         with ports, Children(plan.out) as sup:  # the block stays this run's until every process has stopped
             try:
                 if plan.progress is not None:
@@ -343,19 +358,19 @@ class Launcher:
         if any(s.crashed for s in summaries) and status == "ok":
             status, message = "failed", "a vehicle crashed"
         result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
-        write_summary(
-            plan.out,
-            result,
-            {
-                "seed": plan.seed,
-                "api_port_base": self.api_port_base,
-                "gcs_port": self.gcs_port,
-                "tick_hz": plan.tick_hz,
-                "physics_hz": plan.physics_hz,
-                "phase_every": plan.phase_every,
-            },
-        )
+        write_summary(plan.out, result, self._summary_extra())
         return result
+
+    def _summary_extra(self) -> dict[str, Any]:
+        plan = self.plan
+        return {
+            "seed": plan.seed,
+            "api_port_base": self.api_port_base,
+            "gcs_port": self.gcs_port,
+            "tick_hz": plan.tick_hz,
+            "physics_hz": plan.physics_hz,
+            "phase_every": plan.phase_every,
+        }
 
     def toggle_pause(self) -> None:
         """Pause or resume the clock (``harness run`` does this on SIGUSR1)."""
@@ -369,6 +384,7 @@ class Launcher:
         from harness.autopilot.autopilot import Autopilot, AutopilotConfig
         from harness.autopilot.mavlink.hub import MavlinkHub
         from harness.autopilot.mavlink.personality import core_param_defaults
+        from harness.autopilot.mavlink.runlocal import run_signing
         from harness.autopilot.mavlink.transport import PortsConfig
         from harness.autopilot.sitl import attach_mavlink, vehicle_ports
 
@@ -389,6 +405,7 @@ class Launcher:
         ports = PortsConfig(
             api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
         )
+        signing, trust = run_signing(plan.signing_key_file, os.getpid())  # unsigned: only this run's processes
         hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
         handles: list[Any] = []
         try:
@@ -397,7 +414,7 @@ class Launcher:
                 vp = vehicle_ports(
                     ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports, self._tcp_sim_clients
                 )
-                handles.append(attach_mavlink(ap, vp, plan.out, None, hub, fw))
+                handles.append(attach_mavlink(ap, vp, plan.out, signing, hub, fw, trust))
         except Exception as exc:
             for h in handles:
                 h.close()
@@ -447,6 +464,11 @@ class Launcher:
                     "--gcs-extra-ports",
                     ",".join(str(p) for p in plan.gcs_extra_ports),
                     *(["--tcp-sim-clients"] if self._tcp_sim_clients else []),
+                    *(  # the key's file, never the key: argv is public (ps)
+                        ["--signing-key-file", str(plan.signing_key_file.resolve()), "--trust-run", str(os.getpid())]
+                        if plan.signing_key_file is not None
+                        else []
+                    ),
                 ],
                 env=env,
             )
@@ -573,6 +595,8 @@ class Launcher:
                 for name, code in sup.poll_exits():
                     if name in ("autopilot", "network"):
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
+            if self._checkpoint is not None:
+                self._checkpoint.maybe()
             if plan.progress is not None and real_monotonic_ns() - last_progress > 500_000_000:
                 last_progress = real_monotonic_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))

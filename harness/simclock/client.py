@@ -16,12 +16,12 @@ one thread at a time.
 from __future__ import annotations
 
 import contextlib
-import os
 import socket
 import threading
 from types import TracebackType
 
 from harness.errors import SimulationError
+from harness.secrets import channel_secret
 from harness.simclock import protocol as p
 from harness.simclock.transport import Address, connect, parse_address
 
@@ -54,8 +54,8 @@ class ChannelClient:
     ) -> ChannelClient:
         """Connect, answer the channel's challenge with our subscription, and wait for WELCOME."""
         addr = parse_address(address) if isinstance(address, str) else address
-        if secret is None and os.environ.get("HARNESS_CHANNEL_SECRET"):
-            secret = os.environ["HARNESS_CHANNEL_SECRET"].encode()
+        if secret is None:
+            secret = channel_secret(None, None)  # $HARNESS_SECRET (or $HARNESS_CHANNEL_SECRET), inherited
         try:
             sock = connect(addr, timeout_s)
         except OSError as exc:

@@ -23,6 +23,8 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from harness.record.status import read_summary
+
 log = logging.getLogger(__name__)
 
 RUN_FIELDS = ("status", "message", "sim_time_s", "wall_time_s", "real_time_factor")
@@ -37,8 +39,10 @@ class RunStatus(enum.StrEnum):
     FAILED = "failed"
     INTERRUPTED = "interrupted"
     TIMEOUT = "timeout"
+    KILLED = "killed"
+    """``harness run`` was killed (``kill -9``, the OOM killer) after it started: its summary still said "running"."""
     LOST = "lost"
-    """``harness run`` ended without writing a summary (killed, or a crash before it started)."""
+    """``harness run`` ended without writing a summary (a crash before it started)."""
 
 
 FINISHED = frozenset({RunStatus.OK, RunStatus.FAILED})
@@ -47,7 +51,7 @@ FINISHED = frozenset({RunStatus.OK, RunStatus.FAILED})
 
 def row_from_run_dir(run_dir: Path, params: Mapping[str, Any], seed: int) -> dict[str, Any]:
     """The row of a finished run (its ``summary.json``); raises FileNotFoundError when there is none."""
-    summary = json.loads((run_dir / "summary.json").read_text())
+    summary = read_summary(run_dir)  # "running" left by a killed run reads as "killed"
     row: dict[str, Any] = {"run": run_dir.name, "seed": seed, **params}
     for key in RUN_FIELDS:
         row[key] = summary.get(key)

@@ -174,20 +174,7 @@ def build_sweep(scenario: str | Path, seeds: str | None, sets: Sequence[str]) ->
 
 def _validate(scenario: Path, sets: list[tuple[str, Any]], what: str) -> None:
     try:
-        plan = load_scenario(scenario, sets=sets)
-        _validate_network(plan.network, plan.network_params)
+        load_scenario(scenario, sets=sets)  # network parameters included (scenario/limits.py)
     except ScenarioError as exc:
         text = str(exc)
         raise ScenarioError(text if text.startswith("--set ") else f"{what}: {text}") from None
-
-
-def _validate_network(model: str, params: dict[str, Any]) -> None:
-    """The network model's parameters are checked by the network process at start; a sweep checks them now."""
-    if model == "builtin":
-        from harness.net.builtin import RadioConfig
-
-        RadioConfig.from_params(params)
-    elif model == "ns3":
-        from harness.net.ns3model import Ns3Config
-
-        Ns3Config.from_params(params)

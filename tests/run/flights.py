@@ -27,6 +27,14 @@ def start_sitl(
 ) -> tuple[subprocess.Popen[str], int]:
     """`harness sitl` (``extra``: more options) and the GCS port it reports (read from its stderr, which stays
     a pipe)."""
+    proc, gcs, _ = start_sitl_ports(vehicles, out, stdout, extra)
+    return proc, gcs
+
+
+def start_sitl_ports(
+    vehicles: int, out: Path, stdout: int | None = None, extra: Sequence[str] = ()
+) -> tuple[subprocess.Popen[str], int, int]:
+    """`harness sitl`, its GCS port and the UDP port vehicle 0 listens on."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "harness.cli", "sitl", "--vehicles", str(vehicles), "--out", str(out), *extra],
         stdout=stdout if stdout is not None else subprocess.PIPE,
@@ -36,9 +44,9 @@ def start_sitl(
     assert proc.stderr is not None
     for _ in range(50):  # the ports line comes first unless something warned before it
         line = proc.stderr.readline()
-        found = re.search(r"ground station on udp port (\d+)", line)
+        found = re.search(r"ground station on udp port (\d+); vehicle i listens on udp port (\d+)", line)
         if found:
-            return proc, int(found.group(1))
+            return proc, int(found.group(1)), int(found.group(2))
         if not line:
             break
     proc.kill()

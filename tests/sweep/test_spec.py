@@ -102,7 +102,7 @@ def test_two_parameters_and_the_files_seed_by_default(tmp_path: Path) -> None:
         (["out=a,b"], "--set out: not a sweep parameter (the sweep puts each run under --out)"),
         (
             ["network.model=builtin", "network.params.bitrate=1e6"],
-            "--set network.model=builtin --set network.params.bitrate=1e6: network.params.bitrate: unknown parameter",
+            "--set network.model=builtin --set network.params.bitrate=1e6: {path}: network.params.bitrate: unknown parameter",
         ),
     ],
 )

@@ -118,8 +118,11 @@ class MavlinkServer:
         tap: Callable[[bytes], None] | None = None,
         home_on_first_fix: bool = True,
         firmware: Firmware = Firmware.PX4,
+        trust_unsigned: Callable[[bool, tuple[str, int]], bool] | None = None,
     ) -> None:
         self.firmware = firmware
+        self._trust_unsigned = trust_unsigned
+        """With signing: whether an unsigned frame from (is TCP, address) is obeyed all the same (``runlocal.py``)."""
         self.dialect = make_dialect(firmware, autopilot, vehicle + 1)
         autopilot = self.dialect.api
         self.api = autopilot
@@ -318,6 +321,8 @@ class MavlinkServer:
             return
         self._count("datagrams_rx")
         for d in self.codec.decode(data):
+            if d.status is FrameStatus.UNSIGNED and self._trusted(link, addr):
+                d.status = FrameStatus.OK  # a process of this run (its mission): obeyed unsigned
             if d.status is FrameStatus.MALFORMED:
                 self._count("malformed")
             elif d.status is FrameStatus.UNKNOWN:
@@ -342,6 +347,10 @@ class MavlinkServer:
                 except Exception as e:
                     self._count("handler_errors")
                     self._log_once(e, f"handling {m.get_type()}")
+
+    def _trusted(self, link: int, addr: tuple[str, int]) -> bool:
+        trust = self._trust_unsigned
+        return trust is not None and trust(isinstance(self.links[link], TcpLink), addr)
 
     def _drain_tcp(self, now: int) -> None:
         """Handle every frame already sent to the TCP links (the settle datagram comes over UDP)."""
