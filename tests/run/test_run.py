@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -77,12 +78,17 @@ def test_three_vehicles_fly_the_same_unmodified_script(tmp_path: Path) -> None:
 def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path: Path) -> None:
     out = tmp_path / "run"
     proc = harness("run", "--vehicles", "2", "--mission", str(TAKEOFF_AND_LAND), "--out", str(out), "--speed", "2")
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and not (out / "vehicle-1.tlog").exists():
+    # wait (wall clock, generous for a loaded machine) until the run has simulated a second: the summary it
+    # rewrites every second while it runs says how far it got
+    deadline = time.monotonic() + 120
+    simulated = 0.0
+    while time.monotonic() < deadline and simulated < 1.0:
         time.sleep(0.2)
-    time.sleep(3.0)
+        with contextlib.suppress(OSError, ValueError):
+            simulated = float(json.loads((out / "summary.json").read_text()).get("sim_time_s", 0.0))
+    assert simulated >= 1.0, "the run did not start simulating within 120 s"
     children = pids_with_run_dir(out)
-    assert len(children) >= 3  # autopilot process and two missions (plus mavsdk_server)
+    assert len(children) >= 2  # the two missions (and their mavsdk_server; the autopilots run in-process)
     start = time.monotonic()
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=10)
