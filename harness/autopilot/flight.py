@@ -107,7 +107,7 @@ class FlightCore:
             self.collective = 0.0
             return ZERO4
         on_ground = self.landed_state == LandedState.ON_GROUND
-        att = nav.offboard_att if self.mode == FlightMode.OFFBOARD else None
+        att = nav.offboard_att if self.mode == FlightMode.OFFBOARD else nav.manual_att
         if att is not None:
             if on_ground and att.thrust < self._hover * 0.6:
                 return self._idle_out()
