@@ -132,6 +132,7 @@ class FailureInjector:
             bat = self.ap.core.battery
             bat.consumed_mah = max(bat.consumed_mah, self.ap.params["BAT_CAPACITY"])
         self.rc_off = self.active.get(FailureUnit.SYSTEM_RC_SIGNAL) == FailureType.OFF
+        self.ap._cache = None
         self._say(f"Failure injected: {u.name.lower()} {k.name.lower()}")
         return CommandResult.accepted()
 

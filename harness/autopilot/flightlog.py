@@ -110,8 +110,7 @@ class FlightLog:
         for d in params.defs:
             v = params.get(d.name)
             w.param(d.name, int(v) if d.type == ParamType.INT32 else float(v))
-        for topic in TOPICS:
-            w.add_topic(topic)
+        w.add_topics(TOPICS)
         self._next = {FAST_NS: 0, MEDIUM_NS: 0, SLOW_NS: 0}
         self._status: tuple[object, ...] = ()
         self.closed = False

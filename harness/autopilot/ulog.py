@@ -60,14 +60,13 @@ class Topic:
 
 
 class UlogWriter:
-    """Builds one ULog: definitions first (:meth:`info`, :meth:`param`, :meth:`add_topic`), then
+    """Builds one ULog: definitions first (:meth:`info`, :meth:`param`, then :meth:`add_topics`), then
     :meth:`data` and :meth:`log` in timestamp order."""
 
     def __init__(self, start_us: int) -> None:
         self._buf = bytearray(MAGIC + bytes([VERSION]) + struct.pack("<Q", start_us))
         self._message(b"B", bytes(16) + bytes(24))  # compat, incompat flags; no appended data
         self._topics: dict[str, tuple[int, struct.Struct]] = {}
-        self._data_started = False
 
     def _message(self, kind: bytes, payload: bytes) -> None:
         if len(payload) > 0xFFFF:
@@ -94,25 +93,24 @@ class UlogWriter:
         else:
             self._key_value(b"P", "float", name, struct.pack("<f", float(value)))
 
-    def add_topic(self, topic: Topic) -> int:
-        """Define a topic ('F') and subscribe to its instance 0 ('A'); returns its message id."""
-        if self._data_started:
-            raise RuntimeError("ULog: topics must be defined before the first data message")
-        msg_id = len(self._topics)
-        self._message(b"F", topic.format.encode())
-        self._message(b"A", struct.pack("<BH", 0, msg_id) + topic.name.encode())
-        self._topics[topic.name] = (msg_id, topic.packer())
-        return msg_id
+    def add_topics(self, topics: Sequence[Topic]) -> None:
+        """Define the topics ('F', all of them: the definitions section ends at the first subscription) and
+        subscribe to instance 0 of each ('A', message ids in order from 0). Once, after info and parameters."""
+        if self._topics:
+            raise RuntimeError("ULog: topics are defined once, before any data")
+        for topic in topics:
+            self._message(b"F", topic.format.encode())
+        for msg_id, topic in enumerate(topics):
+            self._message(b"A", struct.pack("<BH", 0, msg_id) + topic.name.encode())
+            self._topics[topic.name] = (msg_id, topic.packer())
 
     def data(self, name: str, values: Sequence[object]) -> None:
         """One sample of topic ``name``: values in field order (arrays flattened), timestamp first."""
-        self._data_started = True
         msg_id, packer = self._topics[name]
         self._message(b"D", struct.pack("<H", msg_id) + packer.pack(*values))
 
     def log(self, level: int, timestamp_us: int, text: str) -> None:
         """A logged string ('L'); ``level`` is the syslog level 0 (emergency) … 7 (debug)."""
-        self._data_started = True
         self._message(b"L", bytes([ord("0") + min(max(level, 0), 7)]) + struct.pack("<Q", timestamp_us) + text.encode())
 
     @property
