@@ -64,6 +64,7 @@ def test_gps_stuck_mag_and_baro_off_show_in_health() -> None:
     assert not h.mag_ok and not h.baro_ok and h.gps_fix_ok and h.gyro_ok
     assert rig.ap.state().mode == FlightMode.HOLD  # no failsafe for those (PX4 warns, keeps flying)
     assert rig.ap.inject_failure(GPS, FailureType.STUCK, 0).ok
+    rig.run(0.5)
     lat = rig.ap.state().gps.lat_deg
     rig.run(1.0)
     assert rig.ap.state().gps.lat_deg == lat and rig.ap.state().gps.fix_type == 3  # the same fix, repeated
