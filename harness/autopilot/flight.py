@@ -243,7 +243,7 @@ class FlightCore:
         contact = (
             wants_down
             and abs(est.vd) < 0.3
-            and math.hypot(est.vn, est.ve) < 1.0
+            and (not est.pos_valid or math.hypot(est.vn, est.ve) < 1.0)  # (no GPS: PX4 skips the check)
             and self.collective < self._hover * 0.85
         )
         self._contact_s = self._contact_s + dt if contact else 0.0
