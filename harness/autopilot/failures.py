@@ -202,7 +202,7 @@ class FailureInjector:
         timeout_ns = int(ap.params["EKF2_NOAID_TOUT"]) * 1000
         if e.pos_valid and not ap.config.use_ground_truth and c.t_ns - e.last_gps_ns > timeout_ns:
             e.pos_valid = False
-            ap._say(Severity.CRITICAL, "Navigation failure: no GPS, position estimate invalid")
+            ap._say(Severity.CRITICAL, "No GPS: position estimate invalid")
         if e.pos_valid or not c.armed or c.landed_state == LandedState.ON_GROUND:
             return
         if c.mode not in _NEEDS_POSITION:
