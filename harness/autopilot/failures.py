@@ -205,8 +205,8 @@ class FailureInjector:
             ap._say(Severity.CRITICAL, "No GPS: position estimate invalid")
         if e.pos_valid or not c.armed or c.landed_state == LandedState.ON_GROUND:
             return
-        if c.mode not in _NEEDS_POSITION:
-            return
+        if c.mode not in _NEEDS_POSITION or (c.mode == FlightMode.OFFBOARD and ap._offboard_kind == "att"):
+            return  # (offboard attitude setpoints need no position)
         if c.mode == FlightMode.POSCTL and ap.params["COM_POSCTL_NAVL"] == 0 and ap.manual.fresh():
             target = FlightMode.ALTCTL
         else:

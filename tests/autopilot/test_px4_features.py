@@ -160,3 +160,18 @@ def test_follow_target_keeps_distance_behind_the_moving_target() -> None:
     rig.run(4.0)  # the target stops reporting: hold
     assert rig.ap.state().mode == FlightMode.FOLLOW_TARGET and math.hypot(*rig.sim.vel[:2]) < 0.5
     assert rig.ap.state().landed_state == LandedState.IN_AIR
+
+
+def test_gps_loss_in_position_mode_degrades_to_altitude_mode() -> None:
+    rig = Rig()
+    rig.up(10.0)
+    _sticks(rig)
+    assert rig.ap.set_mode(FlightMode.POSCTL).ok
+    assert rig.ap.inject_failure(GPS, OFF, 0).ok
+    _fly_with_sticks(rig, 7.0)  # EKF2_NOAID_TOUT 5 s of dead reckoning, then no position
+    s = rig.ap.state()
+    assert s.mode == FlightMode.ALTCTL and s.failsafe == "navigation"  # COM_POSCTL_NAVL 0, sticks live
+    z = rig.sim.pos[2]
+    _fly_with_sticks(rig, 3.0)
+    assert abs(rig.sim.pos[2] - z) < 1.0  # the altitude is still held (baro)
+    assert rig.ap.set_mode(FlightMode.POSCTL).result == Result.DENIED
