@@ -131,6 +131,10 @@ def test_mavsdk_follow_me_example(harness_run: Fly, tmp_path: Path) -> None:
 
 # ------------------------------------------------------------------------------------------- log download
 def check_downloaded(path: Path, run: RunRecord) -> None:
+    """The whole log the vehicle announced (LOG_ENTRY size), identical to its file, a ULog pyulog reads."""
+    _, _, msgs = tlog(run)
+    sizes = [m.size for m in msgs if m.get_type() == "LOG_ENTRY"]  # type: ignore[attr-defined]
+    assert sizes and path.stat().st_size == sizes[-1]
     assert path.read_bytes() == (run.out / "vehicle-0.ulg").read_bytes()[: path.stat().st_size]
     log = pyulog.ULog(str(path))
     names = {d.name for d in log.data_list}
