@@ -200,6 +200,8 @@ class FailureInjector:
         c = ap.core
         e = c.est
         timeout_ns = int(ap.params["EKF2_NOAID_TOUT"]) * 1000
+        if c.t_ns - e.last_gps_ns > 500_000_000:
+            e.forget_gps_motion()
         if e.pos_valid and not ap.config.use_ground_truth and c.t_ns - e.last_gps_ns > timeout_ns:
             e.pos_valid = False
             ap._say(Severity.CRITICAL, "No GPS: position estimate invalid")
