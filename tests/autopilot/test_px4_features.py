@@ -175,3 +175,19 @@ def test_gps_loss_in_position_mode_degrades_to_altitude_mode() -> None:
     _fly_with_sticks(rig, 3.0)
     assert abs(rig.sim.pos[2] - z) < 1.0  # the altitude is still held (baro)
     assert rig.ap.set_mode(FlightMode.POSCTL).result == Result.DENIED
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_gps_off_on_the_fdm_descends_with_bounded_drift(fdm: Callable[..., Any], seed: int) -> None:
+    """GPS off at 22 m on JSBSim: 5 s of dead reckoning, then Descend; the drift is what dead reckoning built."""
+    rig = FlightRig(fdm(seed))
+    rig.up(5.0)
+    assert rig.ap.reposition(None, None, rig.ap.state().alt_amsl_m + 17.0).ok
+    rig.run(8.0)
+    p0 = rig.pos
+    assert rig.ap.inject_failure(GPS, OFF, 0).ok
+    rig.run(15.0)
+    drift = math.dist(p0[:2], rig.pos[:2])
+    print(f"seed {seed}: drift {drift:.1f} m 15 s after GPS off, altitude {-p0[2]:.1f} -> {-rig.pos[2]:.1f} m")
+    assert rig.ap.state().mode == FlightMode.LAND and -rig.pos[2] < -p0[2] - 10.0
+    assert drift < 6.0
