@@ -68,6 +68,7 @@ class FlightMode(enum.Enum):
     MISSION = (MainMode.AUTO, AutoSubMode.MISSION)
     RTL = (MainMode.AUTO, AutoSubMode.RTL)
     LAND = (MainMode.AUTO, AutoSubMode.LAND)
+    FOLLOW_TARGET = (MainMode.AUTO, AutoSubMode.FOLLOW_TARGET)
     ORBIT = (MainMode.POSCTL, AutoSubMode.NONE, "orbit")
 
     @property
@@ -379,6 +380,10 @@ class VehicleState:
     yaw_rad: float = 0.0
     rates_body_rad_s: Vec3 = (0.0, 0.0, 0.0)
     accel_body_m_s2: Vec3 = (0.0, 0.0, -9.81)
+    mag_body_gauss: Vec3 | None = None
+    """The last magnetometer sample the estimator used (None before the first)."""
+    baro_pa: float | None = None
+    """The last barometer pressure the estimator used (None before the first)."""
     home: GeoPoint | None = None
     home_ned_m: Vec3 | None = None
     battery: BatteryState = field(default_factory=BatteryState)

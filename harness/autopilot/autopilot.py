@@ -13,6 +13,7 @@ import threading
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from harness.autopilot.api import (
     AttitudeTarget,
@@ -28,7 +29,11 @@ from harness.autopilot.api import (
     StatusText,
     VehicleState,
 )
+from harness.autopilot.failures import FailureInjector
 from harness.autopilot.flight import FlightCore
+from harness.autopilot.flightlog import FlightLog
+from harness.autopilot.follow import FollowTarget
+from harness.autopilot.manual import ManualControl
 from harness.autopilot.mathutil import GeoRef
 from harness.autopilot.navigator import Orbit
 from harness.autopilot.params import Params
@@ -39,8 +44,6 @@ from harness.errors import ScenarioError
 from harness.fdm.frame import SensorFrame
 from harness.simclock.clock import Clock, WallClock
 from harness.simclock.protocol import pack_status
-
-_NO_RC = frozenset({FlightMode.MANUAL, FlightMode.STABILIZED})
 
 
 @dataclass(frozen=True)
@@ -92,12 +95,23 @@ class Autopilot:
         self._bell_armed = False
         self._ring_at_ns = 0
         self._rung_status = -1
+        self.failures = FailureInjector(self)
+        self.manual = ManualControl(self)
+        self.follow = FollowTarget(self)
+        self.flight_log: FlightLog | None = None
+        """The vehicle's ULog (``harness.autopilot.flightlog``), when the run writes one."""
+        hooks = self.core.nav.mode_hooks
+        hooks[FlightMode.POSCTL] = hooks[FlightMode.ALTCTL] = self.manual._setpoint
+        hooks[FlightMode.FOLLOW_TARGET] = self.follow.update
 
     # ------------------------------------------------------------------ lockstep
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
         with self._lock:
             c = self.core
-            motors = c.step(frame)
+            self.manual.pre_step()
+            motors = c.motors = self.failures.motors(c.step(self.failures.sensors(frame)))
+            if self.flight_log is not None:
+                self.flight_log.record(self)
             if c.t_ns >= self._next_super_ns:
                 self._next_super_ns = c.t_ns + self._super_period_ns
                 self._supervise()
@@ -145,6 +159,8 @@ class Autopilot:
 
     def _say(self, severity: Severity, text: str) -> None:
         self._texts.append(StatusText(max(self.core.t_ns, 0), severity, text))
+        if self.flight_log is not None:
+            self.flight_log.text(self.core.t_ns, severity, text)
 
     def _set_mode(self, mode: FlightMode) -> None:
         c = self.core
@@ -155,6 +171,8 @@ class Autopilot:
 
     def _supervise(self) -> None:
         supervise(self)
+        self.failures.supervise()
+        self.manual.supervise()
 
     def _offboard_climbing(self) -> bool:
         c = self.core
@@ -253,13 +271,16 @@ class Autopilot:
 
     def _mode_locked(self, mode: FlightMode) -> CommandResult:
         c = self.core
-        if mode in _NO_RC:
-            return CommandResult.denied(f"{mode.name} needs a manual control input (RC); none is configured")
+        refusal = self.manual.refuse(mode)
+        if refusal is not None:
+            return refusal
+        if mode == FlightMode.FOLLOW_TARGET and (not c.armed or c.landed_state == LandedState.ON_GROUND):
+            return CommandResult.denied("Follow target denied: not flying (take off first)")
         if mode == FlightMode.ORBIT:
             return CommandResult.denied("orbit needs a radius and speed: use the orbit command (DO_ORBIT)")
         if not c.est.att_valid:
             return CommandResult.rejected("estimator not ready")
-        needs_pos = mode not in (FlightMode.LAND, FlightMode.ALTCTL)
+        needs_pos = mode not in (FlightMode.LAND, FlightMode.ALTCTL, FlightMode.STABILIZED, FlightMode.MANUAL)
         if needs_pos and not c.est.pos_valid and c.armed:
             return CommandResult.denied(f"{mode.name} needs a position estimate")
         if mode == FlightMode.OFFBOARD and not self._offboard_fresh():
@@ -270,6 +291,8 @@ class Autopilot:
             return CommandResult.denied("Return denied: no home position")
         if mode == FlightMode.OFFBOARD:
             self._offboard_apply()
+        if mode == FlightMode.FOLLOW_TARGET:
+            self.follow.enter()
         if self.failsafe and mode != c.mode:
             self.failsafe = ""
         self._set_mode(mode)
@@ -477,3 +500,30 @@ class Autopilot:
 
     def set_param(self, name: str, value: float) -> CommandResult:
         return self.params.set(name, value)
+
+    # ------------------------------------------------------------------ failures, sticks, follow target
+    def inject_failure(self, unit: int, kind: int, instance: int) -> CommandResult:
+        """MAV_CMD_INJECT_FAILURE (the MAVLink side checks ``SYS_FAILURE_EN``): ``harness.autopilot.failures``."""
+        with self._lock:
+            return self.failures.inject(unit, kind, instance)
+
+    def manual_control(self, x: int, y: int, z: int, r: int) -> CommandResult:
+        """One MANUAL_CONTROL (raw axes): ``harness.autopilot.manual``."""
+        with self._lock:
+            return self.manual.set_sticks(x, y, z, r)
+
+    def follow_target(
+        self, lat_deg: float, lon_deg: float, alt_amsl_m: float, vel_ned_m_s: tuple[float, float, float]
+    ) -> CommandResult:
+        """One FOLLOW_TARGET position of the target: ``harness.autopilot.follow``."""
+        with self._lock:
+            return self.follow.set_target(lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s)
+
+    def log_files(self) -> list[tuple[Path, int, int]]:
+        """The flight logs to offer over MAVLink: (path, size in bytes up to the last whole message, start time
+        in Unix seconds); the log being written is flushed first."""
+        with self._lock:
+            fl = self.flight_log
+            if fl is None:
+                return []
+            return [(fl.path, fl.flush(), fl.start_unix_us // 1_000_000)]

@@ -120,6 +120,10 @@ class Estimator:
         )
 
     # ---- the update ----
+    def forget_gps_motion(self) -> None:
+        """GPS gone: stop correcting the attitude for the linear acceleration its velocity last showed."""
+        self._alin[0] = self._alin[1] = self._alin[2] = 0.0
+
     def update(self, frame: SensorFrame, dt: float) -> None:
         if self.params.version != self._ver:
             self._load()

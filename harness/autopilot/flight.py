@@ -107,7 +107,7 @@ class FlightCore:
             self.collective = 0.0
             return ZERO4
         on_ground = self.landed_state == LandedState.ON_GROUND
-        att = nav.offboard_att if self.mode == FlightMode.OFFBOARD else None
+        att = nav.offboard_att if self.mode == FlightMode.OFFBOARD else nav.manual_att
         if att is not None:
             if on_ground and att.thrust < self._hover * 0.6:
                 return self._idle_out()
@@ -243,7 +243,7 @@ class FlightCore:
         contact = (
             wants_down
             and abs(est.vd) < 0.3
-            and math.hypot(est.vn, est.ve) < 1.0
+            and (not est.pos_valid or math.hypot(est.vn, est.ve) < 1.0)  # (no GPS: PX4 skips the check)
             and self.collective < self._hover * 0.85
         )
         self._contact_s = self._contact_s + dt if contact else 0.0

@@ -61,6 +61,10 @@ class Navigator:
         self.orbit_cfg: Orbit | None = None
         self.offboard_sp: OffboardSetpoint | None = None
         self.offboard_att: AttitudeTarget | None = None
+        self.manual_att: AttitudeTarget | None = None
+        """Attitude and thrust from the sticks in STABILIZED / MANUAL (``harness.autopilot.manual``)."""
+        self.mode_hooks: dict[FlightMode, Callable[[float], None]] = {}
+        """Modes whose setpoint another module makes (sticks, follow target): called with dt every update."""
         self._offboard_pos: Vec3 | None = None
         # mission
         self.items: list[MissionItem] = []
@@ -173,6 +177,10 @@ class Navigator:
     def update(self, dt: float, landed: bool) -> TrajectorySetpoint:
         m = self.mode
         self._yaw(dt)
+        hook = self.mode_hooks.get(m)
+        if hook is not None:
+            hook(dt)
+            return self.sp
         if m in (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.TAKEOFF):
             self._track(self.target, dt)
         elif m == FlightMode.LAND:
@@ -201,6 +209,9 @@ class Navigator:
             v = slow + (fast - slow) * (rel - a2) / (a1 - a2)
         else:
             v = slow
+        if not self.est.pos_valid:  # no position (GPS lost): PX4's Descend, level and straight down
+            self.sp.set((NAN, NAN, NAN), (NAN, NAN, v), (0.0, 0.0, NAN), self.yaw_sp)
+            return
         self.tr.step(self.target[0], self.target[1], self.tr.z, 1.0, 1.0, 1.0, p["MPC_ACC_HOR"], 1.0, dt)
         self.sp.set((self.tr.x, self.tr.y, NAN), (0.0, 0.0, v), (NAN, NAN, NAN), self.yaw_sp)
 

@@ -24,6 +24,7 @@ from typing import BinaryIO
 
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.autopilot.firmware import Firmware, firmware_of
+from harness.autopilot.flightlog import FlightLog
 from harness.autopilot.host import run_autopilots
 from harness.autopilot.mavlink.codec import SigningConfig
 from harness.autopilot.mavlink.hub import MavlinkHub
@@ -68,14 +69,17 @@ class TlogWriter:
 
 
 class _Attached:
-    def __init__(self, server: MavlinkServer, tlog: TlogWriter | None) -> None:
+    def __init__(self, server: MavlinkServer, tlog: TlogWriter | None, ulog: FlightLog | None = None) -> None:
         self.server = server
         self.tlog = tlog
+        self.ulog = ulog
 
     def close(self) -> None:
         self.server.stop()
         if self.tlog is not None:
             self.tlog.close()
+        if self.ulog is not None:
+            self.ulog.close()
 
 
 def attach_mavlink(
@@ -90,11 +94,14 @@ def attach_mavlink(
     """The MAVLink server (and tlog, stored parameters) of ``ap``, served by ``hub`` (or a thread of its own),
     presenting ``firmware``'s personality; with ``signing``, unsigned frames are obeyed only from peers
     ``trust_unsigned`` accepts (the run's own processes, ``runlocal.py``)."""
-    tlog = None
+    tlog = ulog = None
     if run_dir is not None:
         tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog")
         for refused in persist_params(ap.params, run_dir, ap.vehicle):
             log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
+        ulog = ap.flight_log = FlightLog(
+            run_dir / f"vehicle-{ap.vehicle}.ulg", ap.params, ap.vehicle, real_time_ns() // 1000
+        )
     server = MavlinkServer(
         ap,
         ap.vehicle,
@@ -108,7 +115,7 @@ def attach_mavlink(
         server.start()
     else:
         hub.add(server)
-    return _Attached(server, tlog)
+    return _Attached(server, tlog, ulog)
 
 
 def vehicle_ports(

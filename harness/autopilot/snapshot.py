@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from harness.autopilot.api import FlightMode, GpsInfo, Health, LandedState, MissionProgress, VehicleState
+from harness.autopilot.failures import FailureUnit
 from harness.autopilot.mathutil import quat_to_euler
 
 if TYPE_CHECKING:
@@ -26,9 +27,10 @@ def build_state(ap: Autopilot) -> VehicleState:
     )
     fresh = 1_000_000_000
     imu_ok = c.t_ns >= 0 and t - e.last_imu_ns < fresh
+    failed = ap.failures.off
     health = Health(
-        gyro_ok=imu_ok,
-        accel_ok=imu_ok,
+        gyro_ok=imu_ok and not failed(FailureUnit.SENSOR_GYRO),
+        accel_ok=imu_ok and not failed(FailureUnit.SENSOR_ACCEL),
         mag_ok=t - e.last_mag_ns < 2 * fresh,
         baro_ok=t - e.last_baro_ns < fresh,
         gps_ok=e.global_position_ok(c.t_ns),
@@ -57,6 +59,8 @@ def build_state(ap: Autopilot) -> VehicleState:
         yaw_rad=yaw,
         rates_body_rad_s=e.rates,
         accel_body_m_s2=e.accel_body,
+        mag_body_gauss=ap.failures.last_mag_gauss,
+        baro_pa=ap.failures.last_baro_pa,
         home=ap.home,
         home_ned_m=ap.home_ned,
         battery=c.battery.state(),

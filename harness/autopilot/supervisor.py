@@ -13,8 +13,6 @@ from harness.autopilot.api import FlightMode, LandedState, Severity
 if TYPE_CHECKING:
     from harness.autopilot.autopilot import Autopilot
 
-_NO_RC = frozenset({FlightMode.MANUAL, FlightMode.STABILIZED})
-
 
 def arming_check(ap: Autopilot) -> str:
     """'' when the vehicle may arm, else the first reason it may not."""
@@ -36,8 +34,9 @@ def arming_check(ap: Autopilot) -> str:
             return "position estimate not converged"
     if c.battery.remaining < p["BAT_LOW_THR"]:
         return f"battery low ({c.battery.remaining:.0%})"
-    if c.mode in _NO_RC:
-        return f"mode {c.mode.name} needs a manual control input (RC); none is configured"
+    refusal = ap.manual.refuse(c.mode)
+    if refusal is not None:
+        return refusal.reason
     if c.mode == FlightMode.OFFBOARD and not ap._offboard_fresh():
         return "offboard mode without a recent setpoint"
     if c.mode == FlightMode.MISSION and not c.nav.items:

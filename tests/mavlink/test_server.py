@@ -99,11 +99,15 @@ def test_param_set_is_echoed_with_same_type_and_value(gcs: Gcs, idle_rig: Rig) -
     assert echo.param_value == 7.5 and echo.param_type == M.MAV_PARAM_TYPE_REAL32
     assert idle_rig.ap.params["MIS_TAKEOFF_ALT"] == 7.5
     # a negative INT32 travels bytewise (its bit pattern is a NaN as a float)
-    gcs.send(gcs.mav.param_set_encode(1, 1, b"FLW_TGT_FA", _int_as_float(-120), M.MAV_PARAM_TYPE_INT32))
-    echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "FLW_TGT_FA")
+    gcs.send(gcs.mav.param_set_encode(1, 1, b"SYS_HITL", _int_as_float(-1), M.MAV_PARAM_TYPE_INT32))
+    echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "SYS_HITL")
     assert echo.param_type == M.MAV_PARAM_TYPE_INT32
-    assert struct.unpack("<i", struct.pack("<f", echo.param_value))[0] == -120
-    assert idle_rig.ap.get_param("FLW_TGT_FA") == -120
+    assert struct.unpack("<i", struct.pack("<f", echo.param_value))[0] == -1
+    assert idle_rig.ap.get_param("SYS_HITL") == -1
+    # FLW_TGT_FA is a FLOAT, as in PX4 and as MAVSDK's follow_me.set_config sets it
+    gcs.send(gcs.mav.param_set_encode(1, 1, b"FLW_TGT_FA", -120.0, M.MAV_PARAM_TYPE_REAL32))
+    echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "FLW_TGT_FA")
+    assert echo.param_type == M.MAV_PARAM_TYPE_REAL32 and echo.param_value == -120.0
     # out of range: refused, echoed unchanged, with a reason
     gcs.send(gcs.mav.param_set_encode(1, 1, b"MIS_TAKEOFF_ALT", 5000.0, M.MAV_PARAM_TYPE_REAL32))
     echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "MIS_TAKEOFF_ALT")
@@ -199,12 +203,15 @@ def test_gcs_port_and_api_port_both_serve_and_set_mode_message(gcs: Gcs) -> None
         ack = qgc.command(512, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, target=3)
         assert ack.result == M.MAV_RESULT_ACCEPTED and ack.target_system == 255
         pos = FlightMode.POSCTL.custom_mode
+        # position mode without stick input: refused as PX4 refuses it, reason to every GCS
+        gcs.send(gcs.mav.set_mode_encode(3, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, pos))
+        assert "manual control" in qgc.recv("STATUSTEXT", 2.0).text
+        gcs.send(gcs.mav.manual_control_encode(3, 0, 0, 500, 0, 0))  # centred sticks
+        gcs.collect(0.2)
         gcs.send(gcs.mav.set_mode_encode(3, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, pos))
         gcs.collect(0.2)
         fly(ap, sim, 0.1)  # the mode applies at the next step
         assert qgc.recv("HEARTBEAT", 2.0, lambda m: m.custom_mode == pos)
-        gcs.send(gcs.mav.set_mode_encode(3, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, FlightMode.MANUAL.custom_mode))
-        assert "RC" in qgc.recv("STATUSTEXT", 2.0).text  # refused, reason to every GCS
         # a command for another system is not ours: no ACK, counted
         gcs.send(gcs.mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
         gcs.collect(0.3)

@@ -179,8 +179,6 @@ class Codec:
     def _classify(self, m: MAVLinkMessage) -> Decoded:
         if isinstance(m, mavlink2.MAVLink_bad_data):
             return Decoded(FrameStatus.MALFORMED, None, str(getattr(m, "reason", "bad data")))
-        if isinstance(m, mavlink2.MAVLink_unknown):
-            return Decoded(FrameStatus.UNKNOWN, m, f"unknown message id {m.get_msgId()}")
         if self._sig is not None:
             frame = m.get_msgbuf()
             signed = frame[0] == mavlink2.PROTOCOL_MARKER_V2 and (frame[2] & mavlink2.MAVLINK_IFLAG_SIGNED) != 0
@@ -188,4 +186,6 @@ class Codec:
                 return Decoded(FrameStatus.UNSIGNED, m, "unsigned frame while signing is required")
             if not verify_signature(frame, self._sig):
                 return Decoded(FrameStatus.BAD_SIGNATURE, m, "bad signature or stale timestamp")
+        if isinstance(m, mavlink2.MAVLink_unknown):  # (its CRC cannot be checked: no CRC_EXTRA for the id)
+            return Decoded(FrameStatus.UNKNOWN, m, f"unknown message id {m.get_msgId()}")
         return Decoded(FrameStatus.OK, m)

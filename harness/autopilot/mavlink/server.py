@@ -34,11 +34,13 @@ from harness.autopilot.mavlink.commands import CommandIn, CommandService
 from harness.autopilot.mavlink.datalink import DataLinkMonitor
 from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule
 from harness.autopilot.mavlink.hub import MavlinkHub
+from harness.autopilot.mavlink.logs import LOG_IDS, LogService
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, statustext
 from harness.autopilot.mavlink.mission import MissionService, ProgressTracker
 from harness.autopilot.mavlink.offboard import handle_setpoint
 from harness.autopilot.mavlink.parameters import ParamService
 from harness.autopilot.mavlink.personality import Firmware, make_dialect
+from harness.autopilot.mavlink.pilot import PILOT_IDS, handle_pilot
 from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
 from harness.autopilot.mavlink.transport import Link, PortsConfig, UdpLink
@@ -154,6 +156,7 @@ class MavlinkServer:
         self.heartbeat = HeartbeatSchedule()
         self.params = ParamService(autopilot, mav, bytewise=dialect.param_bytewise)
         self.missions = MissionService(autopilot, mav, float_form=dialect.mission_float_form)
+        self.logs = LogService(autopilot, mav)
         self.commands = CommandService(
             autopilot, self._request_message, self.streams.set_interval, getattr(autopilot, "inject_failure", None)
         )
@@ -327,6 +330,8 @@ class MavlinkServer:
                 self._count("malformed")
             elif d.status is FrameStatus.UNKNOWN:
                 self._count("unknown_msg")
+                if self._tap is not None and d.message is not None:  # the tlog keeps every frame, known or not
+                    self._tap(bytes(d.message.get_msgbuf()))
             elif d.status is FrameStatus.UNSIGNED:
                 self._count("refused_unsigned")
             elif d.status is FrameStatus.BAD_SIGNATURE:
@@ -400,6 +405,13 @@ class MavlinkServer:
         elif mid in _MISSION_IDS:
             self._send_all(self.missions.handle(m, origin, now), now)
             self._mission_refusals(now)
+        elif mid in PILOT_IDS:
+            r = handle_pilot(self.api, m, self.sysid)
+            if not r.ok:
+                self._count("setpoints_refused")
+                self._say(Severity.WARNING, r.reason, now)
+        elif mid in LOG_IDS:
+            self._send_all(self.logs.handle(m, origin), now)
         elif mid == _M.MAVLINK_MSG_ID_SET_MODE:
             custom = m.custom_mode
             r = self.commands.set_mode_px4(m.base_mode, (custom >> 16) & 0xFF, (custom >> 24) & 0xFF)

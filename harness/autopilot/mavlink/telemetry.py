@@ -212,10 +212,20 @@ def mission_current(mav: mavlink2.MAVLink, s: VehicleState, _t: int) -> MAVLinkM
 
 
 def highres_imu(mav: mavlink2.MAVLink, s: VehicleState, _t: int) -> MAVLinkMessage:
+    """HIGHRES_IMU; ``fields_updated`` has a sensor's bits exactly when SYS_STATUS calls it healthy (accel 0-2,
+    gyro 3-5, mag 6-8, absolute pressure 9, pressure altitude 11, temperature 12)."""
     ax, ay, az = s.accel_body_m_s2
     p, q, r = s.rates_body_rad_s
+    h = s.health
+    mx, my, mz = s.mag_body_gauss or (0.0, 0.0, 0.0)
+    updated = (0x007 if h.accel_ok else 0) | (0x038 if h.gyro_ok else 0) | 0x1000
+    if h.mag_ok and s.mag_body_gauss is not None:
+        updated |= 0x1C0
+    if h.baro_ok and s.baro_pa is not None:
+        updated |= 0x200 | 0x800
+    hpa = (s.baro_pa or 0.0) / 100.0
     return mav.highres_imu_encode(
-        s.t_ns // 1000, ax, ay, az, p, q, r, 0.0, 0.0, 0.0, 0.0, 0.0, finite(s.alt_amsl_m), 25.0, 0x3F, 0
+        s.t_ns // 1000, ax, ay, az, p, q, r, mx, my, mz, hpa, 0.0, finite(s.alt_amsl_m), 25.0, updated, 0
     )
 
 

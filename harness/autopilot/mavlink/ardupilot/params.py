@@ -63,6 +63,7 @@ CORE_DEFAULTS: dict[str, float] = {
     "COM_OF_LOSS_T": 3.0,  # GUID_TIMEOUT 3 s: a velocity target is kept that long
     "COM_OBL_RC_ACT": 5,  # then the vehicle stops and holds, as ArduCopter's GUIDED does
     "MPC_LAND_SPEED": 0.6,  # LAND_SPEED 50 cm/s is below the core's floor; the nearest it takes
+    "COM_RC_IN_MODE": 4,  # no stick input: ALT_HOLD and POSHOLD hold the position as they did before sticks
 }
 """Core parameter defaults of an ArduCopter vehicle (ArduCopter's defaults in core units)."""
 
