@@ -17,7 +17,7 @@ from harness.errors import HarnessError, ScenarioError
 
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
-    from harness.scenario.launcher import Launcher, LaunchPlan
+    from harness.scenario.launcher import Launcher, LaunchPlan, MissionPlan
     from harness.sweep.runner import SweepProgress
 
 
@@ -98,6 +98,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             raise ScenarioError("give either a scenario file or --vehicles/--mission, not both")
         return load_scenario(
             a.scenario,
+            swarm_mission=_swarm_mission(a, script_args),
             sets=_assignments(getattr(a, "set", None) or []),
             out=Path(a.out) if a.out else None,
             seed=a.seed,
@@ -115,6 +116,9 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         if not m.script.is_file():
             raise ScenarioError(f"--mission {m.script}: the file does not exist")
     vehicles = a.vehicles if a.vehicles is not None else max(1, len(missions))
+    swarm_mission = _swarm_mission(a, script_args)
+    if swarm_mission is not None and a.vehicles is None and not missions:
+        raise ScenarioError("--swarm-mission: say how many vehicles it commands with --vehicles N")
     if vehicles < 1:
         raise ScenarioError(f"--vehicles must be >= 1, got {vehicles}")
     if len(missions) == 1 and vehicles > 1:
@@ -123,6 +127,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         vehicles=vehicles,
         out=Path(a.out) if a.out else Path("runs") / time.strftime("%Y%m%d-%H%M%S"),
         missions=tuple(missions),
+        swarm_mission=swarm_mission,
         seed=a.seed or 0,
         speed=a.speed,
         duration_s=a.duration,
@@ -132,6 +137,18 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         pause_wall_s=a.pause_for,
         **_firmware_options(a),
     )
+
+
+def _swarm_mission(a: argparse.Namespace, script_args: list[str] | None) -> MissionPlan | None:
+    """``--swarm-mission PATH``: one script for every vehicle (``docs/swarm.md``)."""
+    from harness.scenario.launcher import MissionPlan
+
+    path = getattr(a, "swarm_mission", None)
+    if path is None:
+        return None
+    if not Path(path).is_file():
+        raise ScenarioError(f"--swarm-mission {path}: the file does not exist")
+    return MissionPlan(Path(path), tuple(script_args or ()))
 
 
 def _firmware_options(a: argparse.Namespace) -> dict[str, Any]:
@@ -387,6 +404,12 @@ def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
 def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--vehicles", type=int, default=None, help="number of vehicles (default: one per --mission)")
     r.add_argument("--mission", action="append", default=[], help="mission script (one: every vehicle flies it)")
+    r.add_argument(
+        "--swarm-mission",
+        default=None,
+        metavar="PATH",
+        help="one script that commands every vehicle (it reads their addresses from $HARNESS_VEHICLES)",
+    )
     r.add_argument("--speed", type=_speed, default=None, help="'max' (default) or a real-time factor")
     r.add_argument("--duration", type=float, default=None, help="sim-time limit in seconds")
     r.add_argument("--network", choices=["builtin", "ns3", "none"], default=None)

@@ -31,6 +31,7 @@ from harness.autopilot.firmware import Firmware, firmware_of
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
+from harness.scenario import swarm
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
@@ -53,6 +54,8 @@ class LaunchPlan:
     out: Path
     missions: tuple[MissionPlan | None, ...] = ()
     """Per vehicle (index i), or shorter: vehicles past the end fly no mission."""
+    swarm_mission: MissionPlan | None = None
+    """One script that commands every vehicle (``HARNESS_VEHICLES``; :mod:`harness.scenario.swarm`)."""
     seed: int = 0
     physics_hz: float = 1000.0
     tick_hz: float = 250.0
@@ -303,9 +306,7 @@ class Launcher:
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
                 self._start_children(sup, channel.address)
-                expected = (
-                    (0 if local else 1) + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
-                )
+                expected = (0 if local else 1) + (1 if plan.network != "none" else 0) + _mission_count(plan)
                 if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=60.0):
                     raise SimulationError(
                         f"only {len(channel.subscribers())} of {expected} processes joined the channel within 60 s "
@@ -327,9 +328,10 @@ class Launcher:
         wall_s = (real_monotonic_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns
         exits = {e.vehicle: e for e in channel.mission_exits}
+        swarm_end = swarm.swarm_exit(channel.mission_exits)
         for s in summaries:
             if s.mission is not None:
-                e = exits.get(s.id)
+                e = exits.get(s.id) if _own_mission(plan, s.id) else swarm_end
                 s.mission_exit_code = e.exit_code if e is not None else None
                 if status == "ok" and (e is None or e.exit_code != 0):
                     status = "failed"
@@ -477,24 +479,17 @@ class Launcher:
             fw = plan.firmware_of(i)
             menv["HARNESS_FIRMWARE"] = fw.value
             if fw is Firmware.ARDUPILOT:  # SERIAL0: a script's tcp:127.0.0.1:5760 is sent here
-                menv["HARNESS_MAVLINK_TCP_PORT"] = str(self.tcp_port_base + plan.tcp_port_step * i)
-            sup.start(
-                f"mission-{i}",
-                [
-                    _python(),
-                    "-m",
-                    "harness.cli",
-                    "mission",
-                    "--channel",
-                    address,
-                    "--vehicle",
-                    str(i),
-                    str(m.script),
-                    "--",
-                    *m.args,
-                ],
-                env=menv,
-            )
+                menv["HARNESS_MAVLINK_TCP_PORT"] = str(self._tcp_port(i))
+            sup.start(f"mission-{i}", _mission_argv(address, i, m), env=menv)
+        if plan.swarm_mission is not None:
+            team = swarm.swarm_vehicles(plan.vehicles, self.api_port_base, plan.firmware_of, self._tcp_port)
+            m = plan.swarm_mission
+            name = swarm.peer_name(m.script.name)
+            argv = _mission_argv(address, swarm.SWARM_VEHICLE, m, name)
+            sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team))
+
+    def _tcp_port(self, vehicle: int) -> int:
+        return self.tcp_port_base + self.plan.tcp_port_step * vehicle
 
     def _loop(
         self, phys: Any, channel: Channel, world: WorldSink, summaries: list[VehicleSummary], sup: Any
@@ -503,7 +498,7 @@ class Launcher:
         n = plan.vehicles
         record_every = max(1, round(plan.tick_hz / plan.record_hz))
         end_ns = None if plan.duration_s is None else round(plan.duration_s * NS_PER_S)
-        missions = sum(1 for m in plan.missions[:n] if m)
+        missions = _mission_count(plan)
         frames = phys.frames()
         link = NativeLink(channel, self._aps)
         paused_once = False
@@ -591,6 +586,21 @@ class Launcher:
         )
 
 
+def _mission_argv(address: str, vehicle: int, m: MissionPlan, name: str | None = None) -> list[str]:
+    return swarm.mission_argv(_python(), address, vehicle, m.script, m.args, name)
+
+
+def _own_mission(plan: LaunchPlan, i: int) -> bool:
+    return i < len(plan.missions) and plan.missions[i] is not None
+
+
+def _mission_count(plan: LaunchPlan) -> int:
+    """Mission processes of a run: one per vehicle that has its own, plus the swarm mission."""
+    return sum(1 for m in plan.missions[: plan.vehicles] if m) + (plan.swarm_mission is not None)
+
+
 def _mission_name(plan: LaunchPlan, i: int) -> str | None:
     m = plan.missions[i] if i < len(plan.missions) else None
+    if m is None:
+        m = plan.swarm_mission
     return str(m.script) if m is not None else None
