@@ -99,6 +99,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         return load_scenario(
             a.scenario,
             swarm_mission=_swarm_mission(a, script_args),
+            **_tree_options(a),
             sets=_assignments(getattr(a, "set", None) or []),
             out=Path(a.out) if a.out else None,
             seed=a.seed,
@@ -136,7 +137,57 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         pause_at_s=a.pause_at,
         pause_wall_s=a.pause_for,
         **_firmware_options(a),
+        **_tree_options(a),
     )
+
+
+def _tree_options(a: argparse.Namespace) -> dict[str, Any]:
+    """--remote-vehicles, --accept, --secret-file, --join-timeout: the root of a tree across machines."""
+    from harness.scenario.tree import read_secret
+
+    remote = getattr(a, "remote_vehicles", None)
+    if remote is None and getattr(a, "accept", None) is None:
+        return {}
+    if remote is not None and remote < 0:
+        raise ScenarioError(f"--remote-vehicles must be >= 0, got {remote}")
+    return {
+        "remote_vehicles": remote or 0,
+        "listen": a.accept,
+        "secret": read_secret(a.secret_file),
+        "join_timeout_s": a.join_timeout,
+    }
+
+
+def _cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
+    from harness.autopilot.firmware import Firmware
+    from harness.scenario.join import JoinPlan, run_join
+    from harness.scenario.launcher import MissionPlan
+    from harness.scenario.tree import read_secret
+
+    _terminate_as_interrupt()
+    missions = [MissionPlan(Path(m), tuple(rest)) for m in a.mission]
+    for m in missions:
+        if not m.script.is_file():
+            raise ScenarioError(f"--mission {m.script}: the file does not exist")
+    if len(missions) == 1:
+        missions = missions * a.vehicles
+    plan = JoinPlan(
+        parent=a.address,
+        first_vehicle=a.first_vehicle,
+        vehicles=a.vehicles,
+        out=Path(a.out) if a.out else Path("runs") / time.strftime("join-%Y%m%d-%H%M%S"),
+        missions=tuple(missions),
+        secret=read_secret(a.secret_file),
+        name=a.name or "",
+        firmware=Firmware.parse(a.firmware, "--firmware"),
+        progress=_progress_printer(),
+    )
+    result = run_join(plan)
+    for vehicle, code in result.exits.items():
+        print(f"  vehicle {vehicle}: mission exit {code}")
+    if result.message:
+        print(result.message, file=sys.stderr)
+    return result.exit_code
 
 
 def _swarm_mission(a: argparse.Namespace, script_args: list[str] | None) -> MissionPlan | None:
@@ -446,6 +497,12 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         "--set", action="append", default=[], metavar="PATH=VALUE", help="change a scenario-file value (TOML)"
     )
     r.add_argument("--no-progress", action="store_true", help="no progress line on stderr (batch use)")
+    r.add_argument(
+        "--remote-vehicles", type=int, default=None, metavar="M", help="M more vehicles flown by `harness join`"
+    )
+    r.add_argument("--accept", default=None, metavar="tcp://HOST:PORT", help="the root channel's address for joiners")
+    r.add_argument("--secret-file", default=None, help="file holding the shared secret (or $HARNESS_CHANNEL_SECRET)")
+    r.add_argument("--join-timeout", type=float, default=600.0, help="wall seconds to wait for the remote vehicles")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -503,6 +560,17 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--channel", default=None, help="channel address (default $HARNESS_CHANNEL)")
     m.add_argument("--name", default=None)
     m.set_defaults(func=_cmd_mission)
+
+    j = sub.add_parser("join", help="fly some vehicles of a run on this machine: a child channel of its root")
+    j.add_argument("address", help="the root's address (harness run --accept …)")
+    j.add_argument("--first-vehicle", type=int, required=True, help="index of the first vehicle flown here")
+    j.add_argument("--vehicles", type=int, default=1, help="how many vehicles this machine flies")
+    j.add_argument("--mission", action="append", default=[], help="mission script (one: every vehicle here)")
+    j.add_argument("--firmware", default="px4", metavar="px4|ardupilot")
+    j.add_argument("--out", default=None, help="directory for this machine's tlogs and mission output")
+    j.add_argument("--name", default=None, help="this child channel's name in the run (default join:HOST:PID)")
+    j.add_argument("--secret-file", default=None, help="file holding the shared secret (or $HARNESS_CHANNEL_SECRET)")
+    j.set_defaults(func=_cmd_join)
 
     c = sub.add_parser("channel", help="run a channel on its own (for a tree across machines)")
     c.add_argument("--listen", default="tcp://127.0.0.1:5760")

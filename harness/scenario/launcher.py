@@ -14,12 +14,9 @@ has exited, the duration is reached, a fault fails the run, or on Ctrl-C; every 
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
-import signal
-import subprocess
 import sys
 import threading
 from collections.abc import Callable
@@ -31,7 +28,8 @@ from harness.autopilot.firmware import Firmware, firmware_of
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
-from harness.scenario import swarm
+from harness.scenario import swarm, tree
+from harness.scenario.children import Children
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
@@ -56,6 +54,13 @@ class LaunchPlan:
     """Per vehicle (index i), or shorter: vehicles past the end fly no mission."""
     swarm_mission: MissionPlan | None = None
     """One script that commands every vehicle (``HARNESS_VEHICLES``; :mod:`harness.scenario.swarm`)."""
+    remote_vehicles: int = 0
+    """Vehicles ``vehicles …`` ``vehicles + remote_vehicles - 1``: physics here, flown by child channels that
+    join on ``listen`` (``harness join``; :mod:`harness.scenario.tree`)."""
+    listen: str | None = None
+    """The root channel's address (default: a free loopback port); off loopback it needs ``secret``."""
+    secret: bytes | None = None
+    join_timeout_s: float = 600.0
     seed: int = 0
     physics_hz: float = 1000.0
     tick_hz: float = 250.0
@@ -158,75 +163,6 @@ def _python() -> str:
     return sys.executable
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: own process group, and SIGKILL when the harness dies (even kill -9)."""
-    os.setpgid(0, 0)
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
-class Children:
-    """The run's child processes: output to files in the run directory, stopped as process groups.
-
-    Every child runs in its own process group and is SIGKILLed by the kernel if this process dies; on
-    ``stop()`` each group gets SIGTERM, then SIGKILL after ``grace_s``. Nothing outlives the run.
-    """
-
-    def __init__(self, run_dir: Path, grace_s: float = 2.0) -> None:
-        self.run_dir = run_dir
-        self.grace_s = grace_s
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-        self._reported: set[str] = set()
-
-    def __enter__(self) -> Children:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def start(self, name: str, argv: list[str], env: dict[str, str]) -> subprocess.Popen[bytes]:
-        out = (self.run_dir / f"{name}.stdout").open("wb")
-        err = (self.run_dir / f"{name}.stderr").open("wb")
-        proc = subprocess.Popen(
-            argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env, preexec_fn=_die_with_parent
-        )
-        out.close()
-        err.close()
-        self.procs[name] = proc
-        return proc
-
-    def poll_exits(self) -> list[tuple[str, int]]:
-        """Children that exited since the last call: (name, exit code; negative = killed by signal)."""
-        out = []
-        for name, proc in self.procs.items():
-            if name not in self._reported and proc.poll() is not None:
-                self._reported.add(name)
-                out.append((name, proc.returncode))
-        return out
-
-    def stop(self) -> None:
-        live = [p for p in self.procs.values() if p.poll() is None]
-        for proc in live:
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(proc.pid, signal.SIGTERM)
-        deadline = real_monotonic_ns() + int(self.grace_s * NS_PER_S)
-        for proc in live:
-            left = max(0.0, (deadline - real_monotonic_ns()) / NS_PER_S)
-            try:
-                proc.wait(left)
-            except subprocess.TimeoutExpired:
-                pass
-        for proc in self.procs.values():
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(proc.pid, signal.SIGKILL)  # the group: grandchildren such as mavsdk_server too
-            proc.wait()
-
-
 class Launcher:
     """Runs one plan. ``run()`` returns the result; the summary is written in any case."""
 
@@ -252,7 +188,7 @@ class Launcher:
         from harness.fdm.sensors import SensorConfig
 
         plan = self.plan
-        n = plan.vehicles
+        n = plan.vehicles + plan.remote_vehicles
         phys = Physics(
             PhysicsConfig(
                 n_vehicles=n,
@@ -272,6 +208,8 @@ class Launcher:
                 stall_timeout_s=plan.stall_timeout_s,
                 epoch_ns=self.epoch_ns,
                 name="root",
+                address=plan.listen or ChannelConfig.address,
+                secret=plan.secret,
             )
         )
         channel.attach_physics()
@@ -281,7 +219,7 @@ class Launcher:
         status, message = "ok", ""
         wall0 = real_monotonic_ns()
         t_ns = 0
-        ports = allocate(n, plan.api_port_base, plan.gcs_port)
+        ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         local: list[Any] = []
@@ -292,7 +230,7 @@ class Launcher:
                         f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
                         f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
                     )
-                    ardupilot = [i for i in range(n) if plan.firmware_of(i) is Firmware.ARDUPILOT]
+                    ardupilot = [i for i in range(plan.vehicles) if plan.firmware_of(i) is Firmware.ARDUPILOT]
                     if ardupilot:
                         step = plan.tcp_port_step
                         plan.progress(
@@ -312,6 +250,7 @@ class Launcher:
                         f"only {len(channel.subscribers())} of {expected} processes joined the channel within 60 s "
                         f"(see the *.stderr files in {plan.out})"
                     )
+                tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
                 status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
             except KeyboardInterrupt:
                 status, message = "interrupted", "stopped by Ctrl-C"
@@ -329,9 +268,10 @@ class Launcher:
         t_ns = phys.t_ns
         exits = {e.vehicle: e for e in channel.mission_exits}
         swarm_end = swarm.swarm_exit(channel.mission_exits)
+        tree.fill_remote(summaries, channel.mission_exits, plan.vehicles)
         for s in summaries:
             if s.mission is not None:
-                e = exits.get(s.id) if _own_mission(plan, s.id) else swarm_end
+                e = swarm_end if s.id < plan.vehicles and not _own_mission(plan, s.id) else exits.get(s.id)
                 s.mission_exit_code = e.exit_code if e is not None else None
                 if status == "ok" and (e is None or e.exit_code != 0):
                     status = "failed"
@@ -414,7 +354,7 @@ class Launcher:
 
     def _start_children(self, sup: Any, address: str) -> None:
         plan = self.plan
-        env = dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out))
+        env = tree.secret_env(dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out)), plan.secret)
         vehicles = ",".join(str(i) for i in range(plan.vehicles))
         overrides = {str(i): p for i, p in enumerate(plan.params) if p}
         if plan.autopilots == "in-process":
@@ -495,7 +435,7 @@ class Launcher:
         self, phys: Any, channel: Channel, world: WorldSink, summaries: list[VehicleSummary], sup: Any
     ) -> tuple[str, str, int]:
         plan = self.plan
-        n = plan.vehicles
+        n = plan.vehicles + plan.remote_vehicles
         record_every = max(1, round(plan.tick_hz / plan.record_hz))
         end_ns = None if plan.duration_s is None else round(plan.duration_s * NS_PER_S)
         missions = _mission_count(plan)
@@ -510,7 +450,7 @@ class Launcher:
             tick = phys.tick
             if end_ns is not None and t_ns >= end_ns:
                 return "ok", "", t_ns
-            if missions and len(channel.mission_exits) >= missions:
+            if tree.missions_done(channel, missions):
                 return "ok", "", t_ns
             if plan.pause_at_s is not None and not paused_once and t_ns >= plan.pause_at_s * NS_PER_S:
                 paused_once = True
@@ -601,6 +541,6 @@ def _mission_count(plan: LaunchPlan) -> int:
 
 def _mission_name(plan: LaunchPlan, i: int) -> str | None:
     m = plan.missions[i] if i < len(plan.missions) else None
-    if m is None:
+    if m is None and i < plan.vehicles:
         m = plan.swarm_mission
     return str(m.script) if m is not None else None
