@@ -51,6 +51,7 @@ class JoinPlan:
     firmware: Firmware = Firmware.PX4
     """The personality of every vehicle flown here."""
     stall_timeout_s: float = 30.0
+    connect_timeout_s: float = 60.0
     progress: Callable[[str], None] | None = None
 
     @property
@@ -82,18 +83,7 @@ def run_join(plan: JoinPlan) -> JoinResult:
             f"harness join: need --first-vehicle >= 0 and --vehicles >= 1, got {plan.first_vehicle}, {plan.vehicles}"
         )
     plan.out.mkdir(parents=True, exist_ok=True)
-    channel = Channel(
-        ChannelConfig(
-            name=plan.name or default_name(),
-            parent=plan.parent,
-            secret=plan.secret,
-            stall_timeout_s=plan.stall_timeout_s,
-        )
-    )
-    try:
-        channel.start()  # connects to the root first: a wrong address or secret fails here, in one line
-    except Exception as exc:  # refused, wrong secret, no such host: one line
-        raise SimulationError(f"harness join: cannot join the run at {plan.parent}: {exc}") from None
+    channel = _connect(plan)
     message = ""
     last = plan.indices[-1]
     with allocate(last + 1, PX4_API_BASE, GCS_PORT) as ports, Children(plan.out) as sup:
@@ -119,6 +109,28 @@ def run_join(plan: JoinPlan) -> JoinResult:
             channel.stop()
     exits = {e.vehicle: e.exit_code for e in channel.mission_exits}
     return JoinResult({i: exits.get(i) for i, m in zip(plan.indices, plan.missions, strict=False) if m}, message)
+
+
+def _connect(plan: JoinPlan) -> Channel:
+    """The child channel, connected to the root: retried while nothing listens there yet (the root may be
+    started after this command), for ``connect_timeout_s``; a refusal (wrong secret, taken vehicles) is final."""
+    end = real_monotonic_ns() + int(plan.connect_timeout_s * NS_PER_S)
+    while True:
+        channel = Channel(
+            ChannelConfig(
+                name=plan.name or default_name(),
+                parent=plan.parent,
+                secret=plan.secret,
+                stall_timeout_s=plan.stall_timeout_s,
+            )
+        )
+        try:
+            return channel.start()
+        except Exception as exc:  # refused, wrong secret, no such host: one line
+            channel.close("could not join")
+            if "cannot reach the channel" not in str(exc) or real_monotonic_ns() > end:
+                raise SimulationError(f"harness join: cannot join the run at {plan.parent}: {exc}") from None
+        real_sleep(0.5)
 
 
 def _start_missions(plan: JoinPlan, sup: Children, address: str, env: dict[str, str], api_base: int) -> int:

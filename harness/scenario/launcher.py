@@ -450,7 +450,7 @@ class Launcher:
             tick = phys.tick
             if end_ns is not None and t_ns >= end_ns:
                 return "ok", "", t_ns
-            if tree.missions_done(channel, missions):
+            if tree.missions_done(channel, missions, plan.vehicles):
                 return "ok", "", t_ns
             if plan.pause_at_s is not None and not paused_once and t_ns >= plan.pause_at_s * NS_PER_S:
                 paused_once = True

@@ -61,10 +61,12 @@ def wait_for_remote(
         raise SimulationError(f"no child channel joined for vehicles {missing} within {timeout_s:g} s")
 
 
-def missions_done(channel: Any, local_missions: int) -> bool:
-    """Every mission of the tree has ended: the root's own and those its children announced."""
-    exits = len(channel.mission_exits)
-    return exits > 0 and exits >= local_missions and channel.missions_below() == 0
+def missions_done(channel: Any, local_missions: int, first_remote: int) -> bool:
+    """Every mission of the tree has ended: the root's own (vehicles below ``first_remote``, and a swarm
+    mission) and those its children announced. False while no mission ever ran."""
+    exits = channel.mission_exits
+    local = sum(1 for e in exits if e.vehicle < first_remote)
+    return len(exits) > 0 and local >= local_missions and channel.missions_below() == 0
 
 
 def fill_remote(summaries: Sequence[Any], exits: Sequence[Any], first_remote: int) -> None:
