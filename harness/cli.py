@@ -143,11 +143,12 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
 
 def _tree_options(a: argparse.Namespace) -> dict[str, Any]:
     """--remote-vehicles, --accept, --secret-file, --join-timeout: the root of a tree across machines."""
-    from harness.scenario.tree import read_secret
+    from harness.scenario.tree import parse_workers, read_secret
 
+    workers = {"workers": parse_workers(a.workers)} if getattr(a, "workers", None) else {}
     remote = getattr(a, "remote_vehicles", None)
     if remote is None and getattr(a, "accept", None) is None:
-        return {}
+        return workers
     if remote is not None and remote < 0:
         raise ScenarioError(f"--remote-vehicles must be >= 0, got {remote}")
     return {
@@ -155,6 +156,7 @@ def _tree_options(a: argparse.Namespace) -> dict[str, Any]:
         "listen": a.accept,
         "secret": read_secret(a.secret_file),
         "join_timeout_s": a.join_timeout,
+        **workers,
     }
 
 
@@ -502,6 +504,9 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     )
     r.add_argument("--accept", default=None, metavar="tcp://HOST:PORT", help="the root channel's address for joiners")
     r.add_argument("--secret-file", default=None, help="file holding the shared secret (or $HARNESS_CHANNEL_SECRET)")
+    r.add_argument(
+        "--workers", default=None, metavar="N|auto", help="spread the vehicles' autopilots over N processes (1)"
+    )
     r.add_argument("--join-timeout", type=float, default=600.0, help="wall seconds to wait for the remote vehicles")
 
 

@@ -61,6 +61,9 @@ class LaunchPlan:
     """The root channel's address (default: a free loopback port); off loopback it needs ``secret``."""
     secret: bytes | None = None
     join_timeout_s: float = 600.0
+    workers: int = 1
+    """Processes that fly the vehicles' autopilots: this one and ``workers - 1`` autopilot hosts, each with
+    an equal share of the vehicles (:func:`harness.scenario.tree.worker_groups`)."""
     seed: int = 0
     physics_hz: float = 1000.0
     tick_hz: float = 250.0
@@ -244,7 +247,8 @@ class Launcher:
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
                 self._start_children(sup, channel.address)
-                expected = (0 if local else 1) + (1 if plan.network != "none" else 0) + _mission_count(plan)
+                hosts = len(self._autopilot_groups())
+                expected = hosts + (1 if plan.network != "none" else 0) + _mission_count(plan)
                 if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=60.0):
                     raise SimulationError(
                         f"only {len(channel.subscribers())} of {expected} processes joined the channel within 60 s "
@@ -325,7 +329,7 @@ class Launcher:
                     },
                 )
             )
-            for i in range(plan.vehicles)
+            for i in tree.worker_groups(plan.vehicles, plan.workers)[0]
         }
         # each vehicle binds its API port; missions connect out to it, and nothing goes to anyone else's port
         ports = PortsConfig(
@@ -355,13 +359,11 @@ class Launcher:
     def _start_children(self, sup: Any, address: str) -> None:
         plan = self.plan
         env = tree.secret_env(dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out)), plan.secret)
-        vehicles = ",".join(str(i) for i in range(plan.vehicles))
         overrides = {str(i): p for i, p in enumerate(plan.params) if p}
-        if plan.autopilots == "in-process":
-            vehicles = ""
-        if vehicles:
+        for k, group in enumerate(self._autopilot_groups()):
+            vehicles = ",".join(str(i) for i in group)
             sup.start(
-                "autopilot",
+                f"autopilot-{k}" if k else "autopilot",
                 [
                     _python(),
                     "-m",
@@ -427,6 +429,11 @@ class Launcher:
             name = swarm.peer_name(m.script.name)
             argv = _mission_argv(address, swarm.SWARM_VEHICLE, m, name)
             sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team))
+
+    def _autopilot_groups(self) -> list[range]:
+        """The vehicles of each autopilot process (the first share stays in this process when in-process)."""
+        groups = tree.worker_groups(self.plan.vehicles, self.plan.workers)
+        return groups[1:] if self.plan.autopilots == "in-process" else groups
 
     def _tcp_port(self, vehicle: int) -> int:
         return self.tcp_port_base + self.plan.tcp_port_step * vehicle
@@ -506,7 +513,7 @@ class Launcher:
                     world.event(t_ns, "crash", {"vehicle": f.vehicle})
             if tick % 50 == 0:  # every 0.2 s of sim time: a child's death is noticed, waitpid stays cheap
                 for name, code in sup.poll_exits():
-                    if name in ("autopilot", "network"):
+                    if name.startswith("autopilot") or name == "network":
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
             if plan.progress is not None and real_monotonic_ns() - last_progress > 500_000_000:
                 last_progress = real_monotonic_ns()

@@ -76,3 +76,28 @@ def fill_remote(summaries: Sequence[Any], exits: Sequence[Any], first_remote: in
         e = by_vehicle.get(s.id)
         if e is not None:
             s.mission, s.mission_exit_code = e.peer, e.exit_code
+
+
+def worker_groups(vehicles: int, workers: int) -> list[range]:
+    """Vehicles 0…n-1 in ``workers`` contiguous shares, as equal as they go (none empty)."""
+    workers = max(1, min(workers, vehicles))
+    base, extra = divmod(vehicles, workers)
+    out, start = [], 0
+    for k in range(workers):
+        size = base + (1 if k < extra else 0)
+        out.append(range(start, start + size))
+        start += size
+    return out
+
+
+def parse_workers(text: str) -> int:
+    """``--workers N|auto`` (auto: one per CPU core this process may use)."""
+    if text == "auto":
+        return max(1, len(os.sched_getaffinity(0)))
+    try:
+        n = int(text)
+    except ValueError:
+        raise ScenarioError(f"--workers must be a number >= 1 or 'auto', got {text!r}") from None
+    if n < 1:
+        raise ScenarioError(f"--workers must be >= 1 or 'auto', got {n}")
+    return n
