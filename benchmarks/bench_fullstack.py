@@ -6,6 +6,7 @@ rates (physics 1 kHz, control tick 250 Hz, phases 0/1 every 5th tick = 50 Hz, i.
     .venv/bin/python benchmarks/bench_fullstack.py                 # 1, 10 and 50 vehicles
     .venv/bin/python benchmarks/bench_fullstack.py 1 10 --repeat 3 # chosen sizes, median of 3 runs
     .venv/bin/python benchmarks/bench_fullstack.py 1 --firmware ardupilot  # ArduCopter vehicles, DroneKit missions
+    .venv/bin/python benchmarks/bench_fullstack.py 10 --workers 1,2       # autopilots in 1 and 2 processes, interleaved
 
 With ``--firmware ardupilot`` the vehicles present the ArduCopter personality and each mission is
 ``missions/hover_dronekit.py`` (the same flight and beacons with DroneKit over SERIAL0, TCP) instead.
@@ -138,7 +139,9 @@ VIEWS = ("off", "file", "web")
 installed), web (``--view web``: world.rrd and the live stream served, with no viewer connected)."""
 
 
-def run(vehicles: int, hover_s: float, view: str = "file", speed: str = "max", firmware: str = "px4") -> Result:
+def run(
+    vehicles: int, hover_s: float, view: str = "file", speed: str = "max", firmware: str = "px4", workers: int = 1
+) -> Result:
     out = Path(tempfile.mkdtemp(prefix=f"bench-fullstack-{vehicles}-"))
     cmd = [
         sys.executable,
@@ -158,6 +161,8 @@ def run(vehicles: int, hover_s: float, view: str = "file", speed: str = "max", f
         *(["--view", "web"] if view == "web" else []),
         "--speed",
         speed,
+        "--workers",
+        str(workers),
         "--",
         str(hover_s),
         str(BEACON_HZ),
@@ -199,8 +204,15 @@ def main() -> int:
         help="pace the runs (e.g. 1): CPU per process class then shows each setting's work without the "
         "contention of a run as fast as possible",
     )
+    ap.add_argument(
+        "--workers",
+        default="1",
+        help="comma-separated `harness run --workers` settings to compare, runs interleaved (e.g. 1,2)",
+    )
     a = ap.parse_args()
     views = a.views.split(",")
+    workers = [int(w) for w in a.workers.split(",")]
+    settings = [(v, w) for v in views for w in workers]
     if any(v not in VIEWS for v in views):
         ap.error(f"--views: each of {VIEWS}, got {a.views!r}")
     client = "MAVSDK (gRPC API)" if a.firmware == "px4" else "DroneKit"
@@ -213,28 +225,28 @@ def main() -> int:
         f"{a.hover:g} s, land; {BEACON_HZ:g} Hz radio beacons to every vehicle"
     )
     print(
-        f"{'view':>5} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
+        f"{'view':>5} {'wk':>2} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
         f"{'bare':>7} {'eff.':>5}   CPU s: harness run / missions / mavsdk_server / network"
     )
     for n in a.sizes:
-        by_view: dict[str, list[Result]] = {v: [] for v in views}
+        by_setting: dict[tuple[str, int], list[Result]] = {s: [] for s in settings}
         for _ in range(a.repeat):  # interleaved, so a change in the machine's load hits every setting alike
-            for v in views:
-                by_view[v].append(run(n, a.hover, v, a.speed, a.firmware))
+            for v, w in settings:
+                by_setting[v, w].append(run(n, a.hover, v, a.speed, a.firmware, w))
         bare = bare_rtf(n)
-        for v in views:
-            report(v, n, sorted(by_view[v], key=lambda x: x.rtf), a.repeat, bare)
+        for (v, w), runs in by_setting.items():
+            report(f"{v:>5} {w:>2}", n, sorted(runs, key=lambda x: x.rtf), a.repeat, bare)
     return 0
 
 
-def report(view: str, n: int, runs: list[Result], repeat: int, bare: float) -> None:
+def report(setting: str, n: int, runs: list[Result], repeat: int, bare: float) -> None:
     """One line: the median run, and its efficiency = its RTF / the RTF of ``n`` bare JSBSim instances
     (``bare_jsbsim.py``), measured in the same session (machines here differ ~2.5x in speed; the ratio less)."""
     r = runs[len(runs) // 2]
     spread = "  (runs: " + ", ".join(f"{x.rtf:.2f}" for x in runs) + ")" if repeat > 1 else ""
     cpu = r.cpu
     print(
-        f"{view:>5} {n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {r.rtf:>6.2f}x {r.flight_rtf:>6.2f}x "
+        f"{setting} {n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {r.rtf:>6.2f}x {r.flight_rtf:>6.2f}x "
         f"{TARGETS.get(n, 0.0):>6.1f}x {int(all(x.ok for x in runs)):>3} {bare:>6.2f}x {r.rtf / bare:>5.3f}   "
         f"{cpu.get('harness run', 0):.1f} / {cpu.get('missions', 0):.1f} / {cpu.get('mavsdk_server', 0):.1f} / "
         f"{cpu.get('network', 0):.1f}{spread}",
