@@ -133,7 +133,9 @@ class Result:
     out: Path
 
 
-MISSIONS = {"px4": "hover.py", "ardupilot": "hover_dronekit.py"}
+MISSIONS = {"px4": "hover.py", "ardupilot": "hover_dronekit.py", "native": "takeoff_and_land_native.py"}
+"""By --firmware; "native" is a PX4 vehicle with a native-API (mavsdk >= 4) mission that takes off, hovers
+and lands, without radio beacons (issue 13's acceptance flight)."""
 VIEWS = ("off", "file", "web")
 """The 3D view: off (``HARNESS_RRD=0``: world.mcap only), file (world.rrd, the default when Rerun is
 installed), web (``--view web``: world.rrd and the live stream served, with no viewer connected)."""
@@ -153,7 +155,7 @@ def run(
         "--network",
         "builtin",
         "--firmware",
-        firmware,
+        "px4" if firmware == "native" else firmware,
         "--mission",
         str(ROOT / "missions" / MISSIONS[firmware]),
         "--out",
@@ -165,7 +167,7 @@ def run(
         str(workers),
         "--",
         str(hover_s),
-        str(BEACON_HZ),
+        *([] if firmware == "native" else [str(BEACON_HZ)]),
     ]
     env = dict(os.environ, HARNESS_RRD="0" if view == "off" else "1", XDG_CONFIG_HOME=str(out / "xdg"))
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
@@ -215,7 +217,7 @@ def main() -> int:
     settings = [(v, w) for v in views for w in workers]
     if any(v not in VIEWS for v in views):
         ap.error(f"--views: each of {VIEWS}, got {a.views!r}")
-    client = "MAVSDK (gRPC API)" if a.firmware == "px4" else "DroneKit"
+    client = {"px4": "MAVSDK (gRPC API)", "native": "MAVSDK (native API, no beacons)"}.get(a.firmware, "DroneKit")
     print(
         f"full stack ({a.firmware}): JSBSim physics + autopilots + MAVLink + built-in network + 1 {client} mission "
         "per vehicle"
