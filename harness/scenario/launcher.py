@@ -246,12 +246,13 @@ class Launcher:
                 if plan.autopilots == "in-process":
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
-                self._start_children(sup, channel.address)
+                self._start_children(sup, channel.address, lambda: channel.pump(0.001))
                 hosts = len(self._autopilot_groups())
                 expected = hosts + (1 if plan.network != "none" else 0) + _mission_count(plan)
-                if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=60.0):
+                start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
+                if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=start_s):
                     raise SimulationError(
-                        f"only {len(channel.subscribers())} of {expected} processes joined the channel within 60 s "
+                        f"only {len(channel.subscribers())} of {expected} processes joined the channel within {start_s:g} s "
                         f"(see the *.stderr files in {plan.out})"
                     )
                 tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
@@ -356,7 +357,9 @@ class Launcher:
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
         return handles
 
-    def _start_children(self, sup: Any, address: str) -> None:
+    def _start_children(self, sup: Any, address: str, pump: Callable[[], None] = lambda: None) -> None:
+        """Start the run's processes; ``pump`` between missions answers the handshakes of those already up
+        (100 process starts take long enough on a busy machine for the first ones' handshakes to time out)."""
         plan = self.plan
         env = tree.secret_env(dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out)), plan.secret)
         overrides = {str(i): p for i, p in enumerate(plan.params) if p}
@@ -423,6 +426,7 @@ class Launcher:
             if fw is Firmware.ARDUPILOT:  # SERIAL0: a script's tcp:127.0.0.1:5760 is sent here
                 menv["HARNESS_MAVLINK_TCP_PORT"] = str(self._tcp_port(i))
             sup.start(f"mission-{i}", _mission_argv(address, i, m), env=menv)
+            pump()
         if plan.swarm_mission is not None:
             team = swarm.swarm_vehicles(plan.vehicles, self.api_port_base, plan.firmware_of, self._tcp_port)
             m = plan.swarm_mission
