@@ -224,7 +224,8 @@ def main() -> int:
     )
     print(
         f"rates: physics 1000 Hz, tick 250 Hz, phase 0/1 every 5th tick (20 ms); mission: takeoff, hover "
-        f"{a.hover:g} s, land; {BEACON_HZ:g} Hz radio beacons to every vehicle"
+        f"{a.hover:g} s, land"
+        + ("" if a.firmware == "native" else f"; {BEACON_HZ:g} Hz radio beacons to every vehicle")
     )
     print(
         f"{'view':>5} {'wk':>2} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
