@@ -161,30 +161,10 @@ def _tree_options(a: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.autopilot.firmware import Firmware
-    from harness.scenario.join import JoinPlan, run_join
-    from harness.scenario.launcher import MissionPlan
-    from harness.scenario.tree import read_secret
+    from harness.scenario.join import plan_from_args, run_join
 
     _terminate_as_interrupt()
-    missions = [MissionPlan(Path(m), tuple(rest)) for m in a.mission]
-    for m in missions:
-        if not m.script.is_file():
-            raise ScenarioError(f"--mission {m.script}: the file does not exist")
-    if len(missions) == 1:
-        missions = missions * a.vehicles
-    plan = JoinPlan(
-        parent=a.address,
-        first_vehicle=a.first_vehicle,
-        vehicles=a.vehicles,
-        out=Path(a.out) if a.out else Path("runs") / time.strftime("join-%Y%m%d-%H%M%S"),
-        missions=tuple(missions),
-        secret=read_secret(a.secret_file),
-        name=a.name or "",
-        firmware=Firmware.parse(a.firmware, "--firmware"),
-        progress=_progress_printer(),
-    )
-    result = run_join(plan)
+    result = run_join(plan_from_args(a, rest, _progress_printer()))
     for vehicle, code in result.exits.items():
         print(f"  vehicle {vehicle}: mission exit {code}")
     if result.message:

@@ -16,11 +16,13 @@ every mission here exited 0.
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import os
 import socket
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,6 +72,27 @@ class JoinResult:
         if self.message:
             return 1
         return 0 if all(code == 0 for code in self.exits.values()) else 1
+
+
+def plan_from_args(a: argparse.Namespace, rest: list[str], progress: Callable[[str], None]) -> JoinPlan:
+    """The plan of ``harness join`` from its command line (``rest``: the missions' arguments)."""
+    missions = [MissionPlan(Path(m), tuple(rest)) for m in a.mission]
+    for m in missions:
+        if not m.script.is_file():
+            raise ScenarioError(f"--mission {m.script}: the file does not exist")
+    if len(missions) == 1:
+        missions = missions * a.vehicles
+    return JoinPlan(
+        parent=a.address,
+        first_vehicle=a.first_vehicle,
+        vehicles=a.vehicles,
+        out=Path(a.out) if a.out else Path("runs") / time.strftime("join-%Y%m%d-%H%M%S"),
+        missions=tuple(missions),
+        secret=tree.read_secret(a.secret_file),
+        name=a.name or "",
+        firmware=Firmware.parse(a.firmware, "--firmware"),
+        progress=progress,
+    )
 
 
 def default_name() -> str:
