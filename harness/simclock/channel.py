@@ -739,8 +739,11 @@ class Channel:
     def _phase0_may_start(self) -> bool:
         """Phase 0 starts once the previous phase 1 is over and, with in-process autopilots, after they have
         stepped this tick: what they send their missions over MAVLink at this tick is then in the missions'
-        sockets before phase 0 begins, so a script reads it in this phase whatever the machine's pace."""
-        return self._phase_tick and not self._wait1 and (self._routed or not self._local_autopilots)
+        sockets before phase 0 begins, so a script reads it in this phase whatever the machine's pace. With
+        autopilots both here and in other processes (``harness run --workers``), the others must have answered
+        too: a command a mission sends in phase 0 then never races a remote autopilot's step of the same tick."""
+        ready = self._routed and not self._wait_ac
+        return self._phase_tick and not self._wait1 and (ready or not self._local_autopilots)
 
     def _route_ticks(self) -> None:
         """Forward this tick's BEGIN-TICK-AC to the holders of the vehicles, with per-holder counts."""
