@@ -6,6 +6,7 @@ rates (physics 1 kHz, control tick 250 Hz, phases 0/1 every 5th tick = 50 Hz, i.
     .venv/bin/python benchmarks/bench_fullstack.py                 # 1, 10 and 50 vehicles
     .venv/bin/python benchmarks/bench_fullstack.py 1 10 --repeat 3 # chosen sizes, median of 3 runs
     .venv/bin/python benchmarks/bench_fullstack.py 1 --firmware ardupilot  # ArduCopter vehicles, DroneKit missions
+    .venv/bin/python benchmarks/bench_fullstack.py 10 --workers 1,2       # autopilots in 1 and 2 processes, interleaved
 
 With ``--firmware ardupilot`` the vehicles present the ArduCopter personality and each mission is
 ``missions/hover_dronekit.py`` (the same flight and beacons with DroneKit over SERIAL0, TCP) instead.
@@ -132,13 +133,17 @@ class Result:
     out: Path
 
 
-MISSIONS = {"px4": "hover.py", "ardupilot": "hover_dronekit.py"}
+MISSIONS = {"px4": "hover.py", "ardupilot": "hover_dronekit.py", "native": "takeoff_and_land_native.py"}
+"""By --firmware; "native" is a PX4 vehicle with a native-API (mavsdk >= 4) mission that takes off, hovers
+and lands, without radio beacons (issue 13's acceptance flight)."""
 VIEWS = ("off", "file", "web")
 """The 3D view: off (``HARNESS_RRD=0``: world.mcap only), file (world.rrd, the default when Rerun is
 installed), web (``--view web``: world.rrd and the live stream served, with no viewer connected)."""
 
 
-def run(vehicles: int, hover_s: float, view: str = "file", speed: str = "max", firmware: str = "px4") -> Result:
+def run(
+    vehicles: int, hover_s: float, view: str = "file", speed: str = "max", firmware: str = "px4", workers: int = 1
+) -> Result:
     out = Path(tempfile.mkdtemp(prefix=f"bench-fullstack-{vehicles}-"))
     cmd = [
         sys.executable,
@@ -150,7 +155,7 @@ def run(vehicles: int, hover_s: float, view: str = "file", speed: str = "max", f
         "--network",
         "builtin",
         "--firmware",
-        firmware,
+        "px4" if firmware == "native" else firmware,
         "--mission",
         str(ROOT / "missions" / MISSIONS[firmware]),
         "--out",
@@ -158,9 +163,11 @@ def run(vehicles: int, hover_s: float, view: str = "file", speed: str = "max", f
         *(["--view", "web"] if view == "web" else []),
         "--speed",
         speed,
+        "--workers",
+        str(workers),
         "--",
         str(hover_s),
-        str(BEACON_HZ),
+        *([] if firmware == "native" else [str(BEACON_HZ)]),
     ]
     env = dict(os.environ, HARNESS_RRD="0" if view == "off" else "1", XDG_CONFIG_HOME=str(out / "xdg"))
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
@@ -199,42 +206,50 @@ def main() -> int:
         help="pace the runs (e.g. 1): CPU per process class then shows each setting's work without the "
         "contention of a run as fast as possible",
     )
+    ap.add_argument(
+        "--workers",
+        default="1",
+        help="comma-separated `harness run --workers` settings to compare, runs interleaved (e.g. 1,2)",
+    )
     a = ap.parse_args()
     views = a.views.split(",")
+    workers = [int(w) for w in a.workers.split(",")]
+    settings = [(v, w) for v in views for w in workers]
     if any(v not in VIEWS for v in views):
         ap.error(f"--views: each of {VIEWS}, got {a.views!r}")
-    client = "MAVSDK (gRPC API)" if a.firmware == "px4" else "DroneKit"
+    client = {"px4": "MAVSDK (gRPC API)", "native": "MAVSDK (native API, no beacons)"}.get(a.firmware, "DroneKit")
     print(
         f"full stack ({a.firmware}): JSBSim physics + autopilots + MAVLink + built-in network + 1 {client} mission "
         "per vehicle"
     )
     print(
         f"rates: physics 1000 Hz, tick 250 Hz, phase 0/1 every 5th tick (20 ms); mission: takeoff, hover "
-        f"{a.hover:g} s, land; {BEACON_HZ:g} Hz radio beacons to every vehicle"
+        f"{a.hover:g} s, land"
+        + ("" if a.firmware == "native" else f"; {BEACON_HZ:g} Hz radio beacons to every vehicle")
     )
     print(
-        f"{'view':>5} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
+        f"{'view':>5} {'wk':>2} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
         f"{'bare':>7} {'eff.':>5}   CPU s: harness run / missions / mavsdk_server / network"
     )
     for n in a.sizes:
-        by_view: dict[str, list[Result]] = {v: [] for v in views}
+        by_setting: dict[tuple[str, int], list[Result]] = {s: [] for s in settings}
         for _ in range(a.repeat):  # interleaved, so a change in the machine's load hits every setting alike
-            for v in views:
-                by_view[v].append(run(n, a.hover, v, a.speed, a.firmware))
+            for v, w in settings:
+                by_setting[v, w].append(run(n, a.hover, v, a.speed, a.firmware, w))
         bare = bare_rtf(n)
-        for v in views:
-            report(v, n, sorted(by_view[v], key=lambda x: x.rtf), a.repeat, bare)
+        for (v, w), runs in by_setting.items():
+            report(f"{v:>5} {w:>2}", n, sorted(runs, key=lambda x: x.rtf), a.repeat, bare)
     return 0
 
 
-def report(view: str, n: int, runs: list[Result], repeat: int, bare: float) -> None:
+def report(setting: str, n: int, runs: list[Result], repeat: int, bare: float) -> None:
     """One line: the median run, and its efficiency = its RTF / the RTF of ``n`` bare JSBSim instances
     (``bare_jsbsim.py``), measured in the same session (machines here differ ~2.5x in speed; the ratio less)."""
     r = runs[len(runs) // 2]
     spread = "  (runs: " + ", ".join(f"{x.rtf:.2f}" for x in runs) + ")" if repeat > 1 else ""
     cpu = r.cpu
     print(
-        f"{view:>5} {n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {r.rtf:>6.2f}x {r.flight_rtf:>6.2f}x "
+        f"{setting} {n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {r.rtf:>6.2f}x {r.flight_rtf:>6.2f}x "
         f"{TARGETS.get(n, 0.0):>6.1f}x {int(all(x.ok for x in runs)):>3} {bare:>6.2f}x {r.rtf / bare:>5.3f}   "
         f"{cpu.get('harness run', 0):.1f} / {cpu.get('missions', 0):.1f} / {cpu.get('mavsdk_server', 0):.1f} / "
         f"{cpu.get('network', 0):.1f}{spread}",

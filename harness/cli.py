@@ -18,7 +18,7 @@ from harness.errors import HarnessError, ScenarioError
 
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
-    from harness.scenario.launcher import Launcher, LaunchPlan
+    from harness.scenario.launcher import Launcher, LaunchPlan, MissionPlan
     from harness.sweep.runner import SweepProgress
 
 
@@ -90,6 +90,8 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             raise ScenarioError("give either a scenario file or --vehicles/--mission, not both")
         return load_scenario(
             a.scenario,
+            swarm_mission=_swarm_mission(a, script_args),
+            **_tree_options(a),
             sets=_assignments(getattr(a, "set", None) or []),
             out=Path(a.out) if a.out else None,
             seed=a.seed,
@@ -108,6 +110,9 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         if not m.script.is_file():
             raise ScenarioError(f"--mission {m.script}: the file does not exist")
     vehicles = a.vehicles if a.vehicles is not None else max(1, len(missions))
+    swarm_mission = _swarm_mission(a, script_args)
+    if swarm_mission is not None and a.vehicles is None and not missions:
+        raise ScenarioError("--swarm-mission: say how many vehicles it commands with --vehicles N")
     if len(missions) == 1 and vehicles > 1:
         missions = missions * vehicles  # one script flies every vehicle
     return _checked(
@@ -115,6 +120,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             vehicles=vehicles,
             out=Path(a.out) if a.out else Path("runs") / time.strftime("%Y%m%d-%H%M%S"),
             missions=tuple(missions),
+            swarm_mission=swarm_mission,
             seed=a.seed or 0,
             speed=a.speed,
             duration_s=a.duration,
@@ -124,6 +130,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             pause_wall_s=a.pause_for,
             signing_key_file=a.signing_key_file,
             **_firmware_options(a),
+            **_tree_options(a),
         )
     )
 
@@ -138,6 +145,8 @@ _CLI_NAMES = {
     "pause_at_s": "--pause-at",
     "pause_wall_s": "--pause-for",
     "signing_key_file": "--signing-key-file",
+    "remote_vehicles": "--remote-vehicles",
+    "join_timeout_s": "--join-timeout",
 }
 
 
@@ -147,6 +156,49 @@ def _checked(plan: LaunchPlan) -> LaunchPlan:
 
     check_plan(plan, "", _CLI_NAMES)
     return plan
+
+
+def _tree_options(a: argparse.Namespace) -> dict[str, Any]:
+    """--remote-vehicles, --accept, --secret-file, --join-timeout: the root of a tree across machines."""
+    from harness.scenario.tree import parse_workers, read_secret
+
+    workers = {"workers": parse_workers(a.workers)} if getattr(a, "workers", None) else {}
+    remote = getattr(a, "remote_vehicles", None)
+    if remote is None and getattr(a, "accept", None) is None:
+        return workers
+    if remote is not None and remote < 0:
+        raise ScenarioError(f"--remote-vehicles must be >= 0, got {remote}")
+    return {
+        "remote_vehicles": remote or 0,
+        "listen": a.accept,
+        "secret": read_secret(a.secret_file),
+        "join_timeout_s": a.join_timeout,
+        **workers,
+    }
+
+
+def _cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
+    from harness.scenario.join import plan_from_args, run_join
+
+    _terminate_as_interrupt()
+    result = run_join(plan_from_args(a, rest, _progress_printer()))
+    for vehicle, code in result.exits.items():
+        print(f"  vehicle {vehicle}: mission exit {code}")
+    if result.message:
+        print(result.message, file=sys.stderr)
+    return result.exit_code
+
+
+def _swarm_mission(a: argparse.Namespace, script_args: list[str] | None) -> MissionPlan | None:
+    """``--swarm-mission PATH``: one script for every vehicle (``docs/swarm.md``)."""
+    from harness.scenario.launcher import MissionPlan
+
+    path = getattr(a, "swarm_mission", None)
+    if path is None:
+        return None
+    if not Path(path).is_file():
+        raise ScenarioError(f"--swarm-mission {path}: the file does not exist")
+    return MissionPlan(Path(path), tuple(script_args or ()))
 
 
 def _firmware_options(a: argparse.Namespace) -> dict[str, Any]:
@@ -408,6 +460,12 @@ def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
 def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--vehicles", type=ct.vehicles, default=None, help="number of vehicles (default: one per --mission)")
     r.add_argument("--mission", action="append", default=[], help="mission script (one: every vehicle flies it)")
+    r.add_argument(
+        "--swarm-mission",
+        default=None,
+        metavar="PATH",
+        help="one script that commands every vehicle (it reads their addresses from $HARNESS_VEHICLES)",
+    )
     r.add_argument("--speed", type=ct.speed, default=None, help="'max' (default) or a real-time factor")
     r.add_argument("--duration", type=ct.duration, default=None, help="sim-time limit in seconds")
     r.add_argument("--network", choices=["builtin", "ns3", "none"], default=None)
@@ -455,6 +513,15 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         metavar="PATH",
         help="MAVLink 2 signing on every link: a file with the 32-byte key as 64 hex characters",
     )
+    r.add_argument(
+        "--remote-vehicles", type=int, default=None, metavar="M", help="M more vehicles flown by `harness join`"
+    )
+    r.add_argument("--accept", default=None, metavar="tcp://HOST:PORT", help="the root channel's address for joiners")
+    r.add_argument("--secret-file", default=None, help="file holding the shared secret (or $HARNESS_SECRET)")
+    r.add_argument(
+        "--workers", default=None, metavar="N|auto", help="spread the vehicles' autopilots over N processes (1)"
+    )
+    r.add_argument("--join-timeout", type=float, default=600.0, help="wall seconds to wait for the remote vehicles")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -514,6 +581,17 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--channel", default=None, help="channel address (default $HARNESS_CHANNEL)")
     m.add_argument("--name", default=None)
     m.set_defaults(func=_cmd_mission)
+
+    j = sub.add_parser("join", help="fly some vehicles of a run on this machine: a child channel of its root")
+    j.add_argument("address", help="the root's address (harness run --accept …)")
+    j.add_argument("--first-vehicle", type=int, required=True, help="index of the first vehicle flown here")
+    j.add_argument("--vehicles", type=int, default=1, help="how many vehicles this machine flies")
+    j.add_argument("--mission", action="append", default=[], help="mission script (one: every vehicle here)")
+    j.add_argument("--firmware", default="px4", metavar="px4|ardupilot")
+    j.add_argument("--out", default=None, help="directory for this machine's tlogs and mission output")
+    j.add_argument("--name", default=None, help="this child channel's name in the run (default join:HOST:PID)")
+    j.add_argument("--secret-file", default=None, help="file holding the shared secret (or $HARNESS_CHANNEL_SECRET)")
+    j.set_defaults(func=_cmd_join)
 
     c = sub.add_parser("channel", help="run a channel on its own (for a tree across machines)")
     c.add_argument("--listen", default="tcp://127.0.0.1:5760")

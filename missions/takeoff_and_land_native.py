@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""Take off, hover, land with the native MAVSDK ≥ 4 API (synchronous calls)."""
+"""Take off, hover (argument: seconds, default 15), land with the native MAVSDK ≥ 4 API (synchronous calls)."""
 
+import sys
 import time
 
 from mavsdk import ComponentType, Configuration, Mavsdk
@@ -24,7 +25,7 @@ def main() -> None:
     action.arm()
     print("-- Taking off")
     action.takeoff()
-    time.sleep(15)
+    time.sleep(float(sys.argv[1]) if len(sys.argv) > 1 else 15.0)
     print(f"-- Hovering at {telemetry.position().relative_altitude_m:.1f} m, landing")
     action.land()
     while telemetry.in_air():

@@ -36,6 +36,7 @@ _TOP = {
     "vehicles",
     "channel",
     "mavlink",
+    "swarm",
 }
 _SECTIONS: dict[str, set[str]] = {
     "world": {"lat_deg", "lon_deg", "alt_amsl_m"},
@@ -45,6 +46,7 @@ _SECTIONS: dict[str, set[str]] = {
     "network": {"model", "params"},
     "channel": {"stall_timeout_s"},
     "mavlink": {"api_port_base", "gcs_port", "signing_key_file"},
+    "swarm": {"mission", "args"},
 }
 _VEHICLES_TABLE = {"count", "mission", "args", "spawn", "spacing_m", "params", "firmware"}
 _VEHICLE = {"mission", "args", "spawn_ned_m", "params", "firmware"}
@@ -210,6 +212,9 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
     net = raw.get("network", {})
     channel = raw.get("channel", {})
     mav = raw.get("mavlink", {})
+    team = raw.get("swarm", {})
+    if team and "mission" not in team:
+        raise ctx.fail("swarm.mission", "missing: the [swarm] table needs the script that commands every vehicle")
 
     speed: float | None = None
     if "speed" in raw:
@@ -234,6 +239,11 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         vehicles=len(missions),
         out=Path(str(raw.get("out", "runs/" + path.stem))),
         missions=tuple(missions),
+        swarm_mission=(
+            MissionPlan(ctx.mission(team["mission"], "swarm.mission"), ctx.args(team.get("args", []), "swarm.args"))
+            if "mission" in team
+            else None
+        ),
         seed=ctx.integer(raw.get("seed", 0), "seed", minimum=0),
         physics_hz=physics_hz,
         tick_hz=tick_hz,

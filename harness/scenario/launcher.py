@@ -14,12 +14,9 @@ has exited, the duration is reached, a fault fails the run, or on Ctrl-C; every 
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
-import signal
-import subprocess
 import sys
 import threading
 from collections.abc import Callable
@@ -32,6 +29,8 @@ from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
 from harness.record.status import Checkpoint, write_json
+from harness.scenario import swarm, tree
+from harness.scenario.children import Children
 from harness.scenario.limits import check_plan
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.simclock import protocol as p
@@ -55,6 +54,18 @@ class LaunchPlan:
     out: Path
     missions: tuple[MissionPlan | None, ...] = ()
     """Per vehicle (index i), or shorter: vehicles past the end fly no mission."""
+    swarm_mission: MissionPlan | None = None
+    """One script that commands every vehicle (``HARNESS_VEHICLES``; :mod:`harness.scenario.swarm`)."""
+    remote_vehicles: int = 0
+    """Vehicles ``vehicles …`` ``vehicles + remote_vehicles - 1``: physics here, flown by child channels that
+    join on ``listen`` (``harness join``; :mod:`harness.scenario.tree`)."""
+    listen: str | None = None
+    """The root channel's address (default: a free loopback port); off loopback it needs ``secret``."""
+    secret: bytes | None = None
+    join_timeout_s: float = 600.0
+    workers: int = 1
+    """Processes that fly the vehicles' autopilots: this one and ``workers - 1`` autopilot hosts, each with
+    an equal share of the vehicles (:func:`harness.scenario.tree.worker_groups`)."""
     seed: int = 0
     physics_hz: float = 1000.0
     tick_hz: float = 250.0
@@ -158,75 +169,6 @@ def _python() -> str:
     return sys.executable
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: own process group, and SIGKILL when the harness dies (even kill -9)."""
-    os.setpgid(0, 0)
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
-class Children:
-    """The run's child processes: output to files in the run directory, stopped as process groups.
-
-    Every child runs in its own process group and is SIGKILLed by the kernel if this process dies; on
-    ``stop()`` each group gets SIGTERM, then SIGKILL after ``grace_s``. Nothing outlives the run.
-    """
-
-    def __init__(self, run_dir: Path, grace_s: float = 2.0) -> None:
-        self.run_dir = run_dir
-        self.grace_s = grace_s
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-        self._reported: set[str] = set()
-
-    def __enter__(self) -> Children:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def start(self, name: str, argv: list[str], env: dict[str, str]) -> subprocess.Popen[bytes]:
-        out = (self.run_dir / f"{name}.stdout").open("wb")
-        err = (self.run_dir / f"{name}.stderr").open("wb")
-        proc = subprocess.Popen(
-            argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env, preexec_fn=_die_with_parent
-        )
-        out.close()
-        err.close()
-        self.procs[name] = proc
-        return proc
-
-    def poll_exits(self) -> list[tuple[str, int]]:
-        """Children that exited since the last call: (name, exit code; negative = killed by signal)."""
-        out = []
-        for name, proc in self.procs.items():
-            if name not in self._reported and proc.poll() is not None:
-                self._reported.add(name)
-                out.append((name, proc.returncode))
-        return out
-
-    def stop(self) -> None:
-        live = [p for p in self.procs.values() if p.poll() is None]
-        for proc in live:
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(proc.pid, signal.SIGTERM)
-        deadline = real_monotonic_ns() + int(self.grace_s * NS_PER_S)
-        for proc in live:
-            left = max(0.0, (deadline - real_monotonic_ns()) / NS_PER_S)
-            try:
-                proc.wait(left)
-            except subprocess.TimeoutExpired:
-                pass
-        for proc in self.procs.values():
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(proc.pid, signal.SIGKILL)  # the group: grandchildren such as mavsdk_server too
-            proc.wait()
-
-
 class Launcher:
     """Runs one plan. ``run()`` returns the result; the summary is written in any case."""
 
@@ -252,7 +194,7 @@ class Launcher:
         from harness.fdm.sensors import SensorConfig
 
         plan = self.plan
-        n = plan.vehicles
+        n = plan.vehicles + plan.remote_vehicles
         phys = Physics(
             PhysicsConfig(
                 n_vehicles=n,
@@ -272,6 +214,8 @@ class Launcher:
                 stall_timeout_s=plan.stall_timeout_s,
                 epoch_ns=self.epoch_ns,
                 name="root",
+                address=plan.listen or ChannelConfig.address,
+                secret=plan.secret,
             )
         )
         channel.attach_physics()
@@ -281,7 +225,7 @@ class Launcher:
         status, message = "ok", ""
         wall0 = real_monotonic_ns()
         t_ns = 0
-        ports = allocate(n, plan.api_port_base, plan.gcs_port)
+        ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         local: list[Any] = []
@@ -304,7 +248,7 @@ class Launcher:
                         f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
                         f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
                     )
-                    ardupilot = [i for i in range(n) if plan.firmware_of(i) is Firmware.ARDUPILOT]
+                    ardupilot = [i for i in range(plan.vehicles) if plan.firmware_of(i) is Firmware.ARDUPILOT]
                     if ardupilot:
                         step = plan.tcp_port_step
                         plan.progress(
@@ -317,15 +261,16 @@ class Launcher:
                 if plan.autopilots == "in-process":
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
-                self._start_children(sup, channel.address)
-                expected = (
-                    (0 if local else 1) + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
-                )
-                if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=60.0):
+                self._start_children(sup, channel.address, lambda: channel.pump(0.001))
+                hosts = len(self._autopilot_groups())
+                expected = hosts + (1 if plan.network != "none" else 0) + _mission_count(plan)
+                start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
+                if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=start_s):
                     raise SimulationError(
-                        f"only {len(channel.subscribers())} of {expected} processes joined the channel within 60 s "
+                        f"only {len(channel.subscribers())} of {expected} processes joined the channel within {start_s:g} s "
                         f"(see the *.stderr files in {plan.out})"
                     )
+                tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
                 status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
             except KeyboardInterrupt:
                 status, message = "interrupted", "stopped by Ctrl-C"
@@ -342,9 +287,11 @@ class Launcher:
         wall_s = (real_monotonic_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns
         exits = {e.vehicle: e for e in channel.mission_exits}
+        swarm_end = swarm.swarm_exit(channel.mission_exits)
+        tree.fill_remote(summaries, channel.mission_exits, plan.vehicles)
         for s in summaries:
             if s.mission is not None:
-                e = exits.get(s.id)
+                e = swarm_end if s.id < plan.vehicles and not _own_mission(plan, s.id) else exits.get(s.id)
                 s.mission_exit_code = e.exit_code if e is not None else None
                 if status == "ok" and (e is None or e.exit_code != 0):
                     status = "failed"
@@ -399,7 +346,7 @@ class Launcher:
                     },
                 )
             )
-            for i in range(plan.vehicles)
+            for i in tree.worker_groups(plan.vehicles, plan.workers)[0]
         }
         # each vehicle binds its API port; missions connect out to it, and nothing goes to anyone else's port
         ports = PortsConfig(
@@ -427,16 +374,16 @@ class Launcher:
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
         return handles
 
-    def _start_children(self, sup: Any, address: str) -> None:
+    def _start_children(self, sup: Any, address: str, pump: Callable[[], None] = lambda: None) -> None:
+        """Start the run's processes; ``pump`` between missions answers the handshakes of those already up
+        (100 process starts take long enough on a busy machine for the first ones' handshakes to time out)."""
         plan = self.plan
-        env = dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out))
-        vehicles = ",".join(str(i) for i in range(plan.vehicles))
+        env = tree.secret_env(dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out)), plan.secret)
         overrides = {str(i): p for i, p in enumerate(plan.params) if p}
-        if plan.autopilots == "in-process":
-            vehicles = ""
-        if vehicles:
+        for k, group in enumerate(self._autopilot_groups()):
+            vehicles = ",".join(str(i) for i in group)
             sup.start(
-                "autopilot",
+                f"autopilot-{k}" if k else "autopilot",
                 [
                     _python(),
                     "-m",
@@ -499,33 +446,32 @@ class Launcher:
             fw = plan.firmware_of(i)
             menv["HARNESS_FIRMWARE"] = fw.value
             if fw is Firmware.ARDUPILOT:  # SERIAL0: a script's tcp:127.0.0.1:5760 is sent here
-                menv["HARNESS_MAVLINK_TCP_PORT"] = str(self.tcp_port_base + plan.tcp_port_step * i)
-            sup.start(
-                f"mission-{i}",
-                [
-                    _python(),
-                    "-m",
-                    "harness.cli",
-                    "mission",
-                    "--channel",
-                    address,
-                    "--vehicle",
-                    str(i),
-                    str(m.script),
-                    "--",
-                    *m.args,
-                ],
-                env=menv,
-            )
+                menv["HARNESS_MAVLINK_TCP_PORT"] = str(self._tcp_port(i))
+            sup.start(f"mission-{i}", _mission_argv(address, i, m), env=menv)
+            pump()
+        if plan.swarm_mission is not None:
+            team = swarm.swarm_vehicles(plan.vehicles, self.api_port_base, plan.firmware_of, self._tcp_port)
+            m = plan.swarm_mission
+            name = swarm.peer_name(m.script.name)
+            argv = _mission_argv(address, swarm.SWARM_VEHICLE, m, name)
+            sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team))
+
+    def _autopilot_groups(self) -> list[range]:
+        """The vehicles of each autopilot process (the first share stays in this process when in-process)."""
+        groups = tree.worker_groups(self.plan.vehicles, self.plan.workers)
+        return groups[1:] if self.plan.autopilots == "in-process" else groups
+
+    def _tcp_port(self, vehicle: int) -> int:
+        return self.tcp_port_base + self.plan.tcp_port_step * vehicle
 
     def _loop(
         self, phys: Any, channel: Channel, world: WorldSink, summaries: list[VehicleSummary], sup: Any
     ) -> tuple[str, str, int]:
         plan = self.plan
-        n = plan.vehicles
+        n = plan.vehicles + plan.remote_vehicles
         record_every = max(1, round(plan.tick_hz / plan.record_hz))
         end_ns = None if plan.duration_s is None else round(plan.duration_s * NS_PER_S)
-        missions = sum(1 for m in plan.missions[:n] if m)
+        missions = _mission_count(plan)
         frames = phys.frames()
         link = NativeLink(channel, self._aps)
         paused_once = False
@@ -537,7 +483,7 @@ class Launcher:
             tick = phys.tick
             if end_ns is not None and t_ns >= end_ns:
                 return "ok", "", t_ns
-            if missions and len(channel.mission_exits) >= missions:
+            if tree.missions_done(channel, missions, plan.vehicles):
                 return "ok", "", t_ns
             if plan.pause_at_s is not None and not paused_once and t_ns >= plan.pause_at_s * NS_PER_S:
                 paused_once = True
@@ -593,7 +539,7 @@ class Launcher:
                     world.event(t_ns, "crash", {"vehicle": f.vehicle})
             if tick % 50 == 0:  # every 0.2 s of sim time: a child's death is noticed, waitpid stays cheap
                 for name, code in sup.poll_exits():
-                    if name in ("autopilot", "network"):
+                    if name.startswith("autopilot") or name == "network":
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
             if self._checkpoint is not None:
                 self._checkpoint.maybe()
@@ -615,6 +561,21 @@ class Launcher:
         )
 
 
+def _mission_argv(address: str, vehicle: int, m: MissionPlan, name: str | None = None) -> list[str]:
+    return swarm.mission_argv(_python(), address, vehicle, m.script, m.args, name)
+
+
+def _own_mission(plan: LaunchPlan, i: int) -> bool:
+    return i < len(plan.missions) and plan.missions[i] is not None
+
+
+def _mission_count(plan: LaunchPlan) -> int:
+    """Mission processes of a run: one per vehicle that has its own, plus the swarm mission."""
+    return sum(1 for m in plan.missions[: plan.vehicles] if m) + (plan.swarm_mission is not None)
+
+
 def _mission_name(plan: LaunchPlan, i: int) -> str | None:
     m = plan.missions[i] if i < len(plan.missions) else None
+    if m is None and i < plan.vehicles:
+        m = plan.swarm_mission
     return str(m.script) if m is not None else None

@@ -117,6 +117,7 @@ class _Peer:
     vehicles: set[int] = field(default_factory=set)
     mission_vehicles: set[int] = field(default_factory=set)
     members: int = 0  # a child channel's admitted subscribers (its own Announce)
+    exits_seen: int = 0  # how many of a child's announced mission exits are in ``mission_exits``
     decoder: p.FrameDecoder = field(default_factory=p.FrameDecoder)
     out: bytearray = field(default_factory=bytearray)
     nonce: bytes = b""
@@ -571,7 +572,8 @@ class Channel:
                 missions.add(peer.vehicle)
             if peer.kind == p.PeerKind.CHILD:
                 missions |= peer.mission_vehicles
-        self._send(self._up, p.Announce(tuple(sorted(held)), tuple(sorted(missions)), self.tree_size()))
+        exits = tuple((e.peer, e.vehicle, e.exit_code, e.reason) for e in self.mission_exits)
+        self._send(self._up, p.Announce(tuple(sorted(held)), tuple(sorted(missions)), self.tree_size(), exits))
 
     def _active(self, *kinds: p.PeerKind) -> Iterable[_Peer]:
         """Admitted peers below this channel, of ``kinds`` (all kinds if none); cached per membership."""
@@ -609,6 +611,9 @@ class Channel:
             peer.vehicles = set(msg.vehicles)
             peer.mission_vehicles = set(msg.mission_vehicles)
             peer.members = msg.members
+            for name, vehicle, code, reason in msg.exits[peer.exits_seen :]:  # missions that ended below it
+                self.mission_exits.append(MissionExit(name, vehicle, code, reason))
+            peer.exits_seen = max(peer.exits_seen, len(msg.exits))
             self._membership_changed()
             self._announce_up()
             self._progress()
@@ -734,8 +739,11 @@ class Channel:
     def _phase0_may_start(self) -> bool:
         """Phase 0 starts once the previous phase 1 is over and, with in-process autopilots, after they have
         stepped this tick: what they send their missions over MAVLink at this tick is then in the missions'
-        sockets before phase 0 begins, so a script reads it in this phase whatever the machine's pace."""
-        return self._phase_tick and not self._wait1 and (self._routed or not self._local_autopilots)
+        sockets before phase 0 begins, so a script reads it in this phase whatever the machine's pace. With
+        autopilots both here and in other processes (``harness run --workers``), the others must have answered
+        too: a command a mission sends in phase 0 then never races a remote autopilot's step of the same tick."""
+        ready = self._routed and not self._wait_ac
+        return self._phase_tick and not self._wait1 and (ready or not self._local_autopilots)
 
     def _route_ticks(self) -> None:
         """Forward this tick's BEGIN-TICK-AC to the holders of the vehicles, with per-holder counts."""
@@ -1031,6 +1039,14 @@ class Channel:
             for peer in list(self._peers.values())
             if peer.kind is not None and peer.admitted and not peer.upstream
         ]
+
+    def held_vehicles(self) -> set[int]:
+        """Vehicles whose autopilots (or child channels) have joined below this channel."""
+        return set(self._held_vehicles())
+
+    def missions_below(self) -> int:
+        """Missions of vehicles still running in the child channels below this one (as they announced)."""
+        return sum(len(peer.mission_vehicles) for peer in self._active(p.PeerKind.CHILD))
 
     def tree_size(self) -> int:
         """Admitted subscribers in the whole tree below this channel: its own, and what each child announced."""

@@ -144,6 +144,8 @@ class Announce(_Msg, tag="ANNOUNCE", frozen=True):
     vehicles: tuple[int, ...]
     mission_vehicles: tuple[int, ...] = ()
     members: int = 0  # admitted subscribers below the sender, counted through its own children
+    exits: tuple[tuple[str, int, int, str], ...] = ()
+    """Every mission that ended below the sender so far: (name, vehicle, exit code, reason), oldest first."""
 
 
 # --- the tick ----------------------------------------------------------------------------------

@@ -1,0 +1,80 @@
+"""The child processes of a run (``harness run``, ``harness join``): own process groups, no orphans."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+from pathlib import Path
+
+from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+
+
+def _die_with_parent() -> None:
+    """In the child, before exec: own process group, and SIGKILL when the harness dies (even kill -9)."""
+    os.setpgid(0, 0)
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+class Children:
+    """The run's child processes: output to files in the run directory, stopped as process groups.
+
+    Every child runs in its own process group and is SIGKILLed by the kernel if this process dies; on
+    ``stop()`` each group gets SIGTERM, then SIGKILL after ``grace_s``. Nothing outlives the run.
+    """
+
+    def __init__(self, run_dir: Path, grace_s: float = 2.0) -> None:
+        self.run_dir = run_dir
+        self.grace_s = grace_s
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self._reported: set[str] = set()
+
+    def __enter__(self) -> Children:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def start(self, name: str, argv: list[str], env: dict[str, str]) -> subprocess.Popen[bytes]:
+        out = (self.run_dir / f"{name}.stdout").open("wb")
+        err = (self.run_dir / f"{name}.stderr").open("wb")
+        proc = subprocess.Popen(
+            argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env, preexec_fn=_die_with_parent
+        )
+        out.close()
+        err.close()
+        self.procs[name] = proc
+        return proc
+
+    def poll_exits(self) -> list[tuple[str, int]]:
+        """Children that exited since the last call: (name, exit code; negative = killed by signal)."""
+        out = []
+        for name, proc in self.procs.items():
+            if name not in self._reported and proc.poll() is not None:
+                self._reported.add(name)
+                out.append((name, proc.returncode))
+        return out
+
+    def stop(self) -> None:
+        live = [p for p in self.procs.values() if p.poll() is None]
+        for proc in live:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(proc.pid, signal.SIGTERM)
+        deadline = real_monotonic_ns() + int(self.grace_s * NS_PER_S)
+        for proc in live:
+            left = max(0.0, (deadline - real_monotonic_ns()) / NS_PER_S)
+            try:
+                proc.wait(left)
+            except subprocess.TimeoutExpired:
+                pass
+        for proc in self.procs.values():
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(proc.pid, signal.SIGKILL)  # the group: grandchildren such as mavsdk_server too
+            proc.wait()

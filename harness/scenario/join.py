@@ -1,0 +1,215 @@
+"""``harness join ADDRESS``: fly some vehicles of a run from another machine, as a child channel of its root.
+
+Processes on the joining machine::
+
+    harness join (this process)    a child channel (loopback) connected to the root channel at ADDRESS
+      ├─ mission i (per vehicle)   harness mission SCRIPT on the sim clock, type 0 of the child channel
+      └─ autopilot host            the vehicles' autopilots and MAVLink servers (python -m harness.autopilot.sitl)
+
+The root (``harness run --remote-vehicles M --accept ADDRESS``) simulates the physics of every vehicle and
+records the ground truth; BEGIN-TICK-AC of vehicles ``first … first + M - 1`` flow down to this child, the
+autopilots here answer, and the root's phases run the missions here as well (the paper's tree of channels,
+section III-C). Missions start before the autopilots, so they have joined (and the root knows them) before
+the root's first tick. This command ends when the root ends the run (or on Ctrl-C); it exits 0 only when
+every mission here exited 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import socket
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from harness.autopilot.firmware import Firmware
+from harness.errors import ScenarioError, SimulationError
+from harness.scenario import tree
+from harness.scenario.children import Children
+from harness.scenario.launcher import MissionPlan
+from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
+from harness.scenario.swarm import mission_argv
+from harness.simclock.channel import Channel, ChannelConfig
+from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class JoinPlan:
+    parent: str
+    first_vehicle: int
+    vehicles: int
+    out: Path
+    missions: tuple[MissionPlan | None, ...] = ()
+    """Per vehicle of this machine (index 0 = ``first_vehicle``)."""
+    secret: bytes | None = None
+    name: str = ""
+    firmware: Firmware = Firmware.PX4
+    """The personality of every vehicle flown here."""
+    stall_timeout_s: float = 30.0
+    connect_timeout_s: float = 60.0
+    progress: Callable[[str], None] | None = None
+
+    @property
+    def indices(self) -> range:
+        return range(self.first_vehicle, self.first_vehicle + self.vehicles)
+
+
+@dataclass(frozen=True)
+class JoinResult:
+    exits: dict[int, int | None]
+    """Exit code of each vehicle's mission here (None: it never reported one)."""
+    message: str
+
+    @property
+    def exit_code(self) -> int:
+        if self.message:
+            return 1
+        return 0 if all(code == 0 for code in self.exits.values()) else 1
+
+
+def plan_from_args(a: argparse.Namespace, rest: list[str], progress: Callable[[str], None]) -> JoinPlan:
+    """The plan of ``harness join`` from its command line (``rest``: the missions' arguments)."""
+    missions = [MissionPlan(Path(m), tuple(rest)) for m in a.mission]
+    for m in missions:
+        if not m.script.is_file():
+            raise ScenarioError(f"--mission {m.script}: the file does not exist")
+    if len(missions) == 1:
+        missions = missions * a.vehicles
+    return JoinPlan(
+        parent=a.address,
+        first_vehicle=a.first_vehicle,
+        vehicles=a.vehicles,
+        out=Path(a.out) if a.out else Path("runs") / time.strftime("join-%Y%m%d-%H%M%S"),
+        missions=tuple(missions),
+        secret=tree.read_secret(a.secret_file),
+        name=a.name or "",
+        firmware=Firmware.parse(a.firmware, "--firmware"),
+        progress=progress,
+    )
+
+
+def default_name() -> str:
+    return f"join:{socket.gethostname()}:{os.getpid()}"
+
+
+def run_join(plan: JoinPlan) -> JoinResult:
+    """Join the run at ``plan.parent`` and fly its vehicles until the root ends the run."""
+    if plan.vehicles < 1 or plan.first_vehicle < 0:
+        raise ScenarioError(
+            f"harness join: need --first-vehicle >= 0 and --vehicles >= 1, got {plan.first_vehicle}, {plan.vehicles}"
+        )
+    plan.out.mkdir(parents=True, exist_ok=True)
+    channel = _connect(plan)
+    message = ""
+    last = plan.indices[-1]
+    with allocate(last + 1, PX4_API_BASE, GCS_PORT) as ports, Children(plan.out) as sup:
+        try:
+            env = tree.secret_env(
+                dict(os.environ, HARNESS_CHANNEL=channel.address, HARNESS_RUN_DIR=str(plan.out)), plan.secret
+            )
+            missions = _start_missions(plan, sup, channel.address, env, ports.api_base)
+            _wait(
+                lambda: len(channel.subscribers()) >= missions,
+                60.0,
+                f"only some of the {missions} missions started (see {plan.out}/*.stderr)",
+            )
+            sup.start("autopilot", _autopilot_argv(plan, channel.address, ports.api_base, ports.gcs), env=env)
+            if plan.progress is not None:
+                plan.progress(f"joined {plan.parent} as {channel.config.name}: vehicles {plan.first_vehicle}-{last}")
+            message = _supervise(channel, sup)
+        except KeyboardInterrupt:
+            message = "stopped by Ctrl-C"
+        except SimulationError as exc:
+            message = str(exc)
+        finally:
+            channel.stop()
+    exits = {e.vehicle: e.exit_code for e in channel.mission_exits}
+    return JoinResult({i: exits.get(i) for i, m in zip(plan.indices, plan.missions, strict=False) if m}, message)
+
+
+def _connect(plan: JoinPlan) -> Channel:
+    """The child channel, connected to the root: retried while nothing listens there yet (the root may be
+    started after this command), for ``connect_timeout_s``; a refusal (wrong secret, taken vehicles) is final."""
+    end = real_monotonic_ns() + int(plan.connect_timeout_s * NS_PER_S)
+    while True:
+        channel = Channel(
+            ChannelConfig(
+                name=plan.name or default_name(),
+                parent=plan.parent,
+                secret=plan.secret,
+                stall_timeout_s=plan.stall_timeout_s,
+            )
+        )
+        try:
+            return channel.start()
+        except Exception as exc:  # refused, wrong secret, no such host: one line
+            channel.close("could not join")
+            if "cannot reach the channel" not in str(exc) or real_monotonic_ns() > end:
+                raise SimulationError(f"harness join: cannot join the run at {plan.parent}: {exc}") from None
+        real_sleep(0.5)
+
+
+def _start_missions(plan: JoinPlan, sup: Children, address: str, env: dict[str, str], api_base: int) -> int:
+    count = 0
+    for i, m in zip(plan.indices, plan.missions, strict=False):
+        if m is None:
+            continue
+        fw = plan.firmware
+        menv = dict(env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(i + 1), HARNESS_MAVLINK_PORT=str(api_base + i))
+        menv["HARNESS_FIRMWARE"] = fw.value
+        if fw is Firmware.ARDUPILOT:
+            menv["HARNESS_MAVLINK_TCP_PORT"] = str(api_base + i)
+        sup.start(f"mission-{i}", mission_argv(sys.executable, address, i, m.script, m.args), env=menv)
+        count += 1
+    return count
+
+
+def _autopilot_argv(plan: JoinPlan, address: str, api_base: int, gcs: int) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "harness.autopilot.sitl",
+        "--address",
+        address,
+        "--vehicles",
+        ",".join(str(i) for i in plan.indices),
+        "--api-port-base",
+        "0",
+        "--api-local-port-base",
+        str(api_base),
+        "--gcs-port",
+        str(gcs),
+        "--run-dir",
+        str(plan.out),
+        "--params",
+        json.dumps({}),
+        "--firmware",
+        plan.firmware.value,
+        "--tcp-port-base",
+        str(api_base),
+        "--tcp-sim-clients",
+    ]
+
+
+def _wait(predicate: Callable[[], bool], timeout_s: float, why: str) -> None:
+    end = real_monotonic_ns() + int(timeout_s * NS_PER_S)
+    while not predicate():
+        if real_monotonic_ns() > end:
+            raise SimulationError(f"harness join: {why}")
+        real_sleep(0.02)
+
+
+def _supervise(channel: Channel, sup: Children) -> str:
+    """Until the root ends the run: '' when it did, else why this machine's part failed."""
+    while not channel.wait(0.2):
+        for name, code in sup.poll_exits():
+            if name == "autopilot":
+                return f"the autopilot process exited with {code} (see autopilot.stderr)"
+    return channel.failure or ""
