@@ -576,7 +576,10 @@ def build_parser() -> argparse.ArgumentParser:
     m = sub.add_parser("mission", help="run an unmodified script as a type-0 subscriber on the sim clock")
     m.add_argument("script")
     m.add_argument(
-        "--vehicle", type=ct.integer(0, 254), default=None, help="vehicle index (default $HARNESS_VEHICLE or 0)"
+        "--vehicle",
+        type=ct.integer(-1, 254),
+        default=None,
+        help="vehicle index (default $HARNESS_VEHICLE or 0; -1: a swarm mission)",
     )
     m.add_argument("--channel", default=None, help="channel address (default $HARNESS_CHANNEL)")
     m.add_argument("--name", default=None)
