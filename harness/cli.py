@@ -37,7 +37,7 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
 
 
 def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
-    from harness.simclock.channel import Channel, ChannelConfig
+    from harness.channel import Channel, ChannelConfig
 
     secret = (a.secret or os.environ.get("HARNESS_CHANNEL_SECRET") or "").encode() or None
     cfg = ChannelConfig(

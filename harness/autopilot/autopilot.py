@@ -38,7 +38,7 @@ from harness.autopilot.validate import check_mission, finite
 from harness.errors import ScenarioError
 from harness.fdm.frame import SensorFrame
 from harness.simclock.clock import Clock, WallClock
-from harness.simclock.protocol import pack_status
+from harness.wire.protocol import pack_status
 
 _NO_RC = frozenset({FlightMode.MANUAL, FlightMode.STABILIZED})
 

@@ -22,8 +22,8 @@ import threading
 from types import TracebackType
 
 from harness.errors import SimulationError
-from harness.simclock import protocol as p
-from harness.simclock.transport import Address, connect, parse_address
+from harness.wire import protocol as p
+from harness.wire.transport import Address, connect, parse_address
 
 
 class ChannelClosed(SimulationError):
@@ -128,6 +128,13 @@ class ChannelClient:
         first, rest = msgs[0], msgs[1:]
         self._pending = rest + self._pending
         return first
+
+    def hand_over(self) -> tuple[socket.socket, p.FrameDecoder, list[p.Message]]:
+        """Give the connection to an event loop (a child channel's shell): the socket, the decoder with any
+        partial frame in it, and the messages already decoded but not yet read. This client is done."""
+        pending, self._pending = self._pending, []
+        self.closed = True
+        return self.sock, self._decoder, pending
 
     def close(self, reason: str = "", exit_code: int = 0) -> None:
         if self.closed:
