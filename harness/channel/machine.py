@@ -78,6 +78,7 @@ class TickMachine(Membership):
         self.t_ns = -1
         self.tick = -1
         self.p1_t_ns = -1
+        self.p1_tick = -1
         """Sim time of the last phase 1 started (it may still run while physics goes on: ``overlap_phase1``)."""
         self.wait0: set[PeerState] = set()
         self.wait1: set[PeerState] = set()
@@ -190,7 +191,7 @@ class TickMachine(Membership):
             self.fault(peer, f"sent END-TICK-{ph} for t={t_ns} ns out of phase", p.ErrorCode.UNEXPECTED)
             return
         waiting.discard(peer)
-        self.watchdog.clear(peer.pid)
+        self._answered(peer)
         self._trace("et" + ph, peer)
         self._progress()
 
@@ -205,7 +206,7 @@ class TickMachine(Membership):
         self._etas[msg.vehicle] = msg
         if not waiting:
             del self.wait_ac[peer]
-            self.watchdog.clear(peer.pid)
+            self._answered(peer)
             if not self.wait_ac:
                 self.tick_state = TickState.ANSWERED
                 if self.role is Role.CHILD:
@@ -246,6 +247,17 @@ class TickMachine(Membership):
         up = self.up
         if up is not None and up.kind == p.PeerKind.CHILD and source is not up:
             self.send_raw(up, data)
+
+    def _answered(self, peer: PeerState) -> None:
+        """``peer`` gave one answer it owed: its deadline ends unless it owes another (a child owes three)."""
+        if peer in self.wait_ac:
+            peer.waiting_for = f"END-TICK-AC of tick {self.tick}"
+        elif peer in self.wait0:
+            peer.waiting_for = f"END-TICK-0 of tick {self.tick}"
+        elif peer in self.wait1:
+            peer.waiting_for = f"END-TICK-1 of tick {self.p1_tick}"
+        else:
+            self.watchdog.clear(peer.pid)
 
     # -- events from above ----------------------------------------------------------------------------
 
@@ -439,7 +451,7 @@ class TickMachine(Membership):
 
     def _start_phase1(self, parent_msg: p.BeginTick1 | None) -> None:
         self.phase = PhaseState.ONE
-        self.p1_t_ns = self.t_ns
+        self.p1_t_ns, self.p1_tick = self.t_ns, self.tick
         carrying = bool(parent_msg.packets if parent_msg is not None else self._packets)
         t = self.t_ns
         peers = [
