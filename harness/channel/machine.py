@@ -150,7 +150,9 @@ class TickMachine(Membership):
     # -- events from below --------------------------------------------------------------------------
 
     def receive(self, peer: PeerState, msg: p.Message) -> None:
-        """A message from an admitted peer below."""
+        """A message from an admitted peer below (ignored once it is closed: the rest of its last read)."""
+        if peer.closed:
+            return
         if isinstance(msg, p.EndTickAC):
             self._on_end_tick_ac(peer, msg)
         elif isinstance(msg, p.EndTick0):

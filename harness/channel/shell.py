@@ -452,9 +452,9 @@ class Channel:
                 self._run_actions()
             return
         for msg in msgs:
-            if conn.closed:
-                return
             peer = conn.peer
+            if conn.closed or (peer is not None and peer.closed):
+                break  # dropped by an earlier message of this read
             if peer is None:
                 self._on_hello(conn, msg)
             elif peer.upstream:
