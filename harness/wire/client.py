@@ -31,12 +31,19 @@ class ChannelClosed(SimulationError):
 
 
 class ChannelClient:
-    def __init__(self, sock: socket.socket, welcome: p.Welcome, name: str) -> None:
+    def __init__(
+        self,
+        sock: socket.socket,
+        welcome: p.Welcome,
+        name: str,
+        decoder: p.FrameDecoder | None = None,
+        pending: list[p.Message] | None = None,
+    ) -> None:
         self.sock = sock
         self.welcome = welcome
         self.name = name
-        self._decoder = p.FrameDecoder()
-        self._pending: list[p.Message] = []
+        self._decoder = decoder or p.FrameDecoder()
+        self._pending: list[p.Message] = pending or []
         self._wlock = threading.Lock()
         self.closed = False
 
@@ -86,10 +93,7 @@ class ChannelClient:
             sock.close()
             raise SimulationError(f"channel at {addr} answered HELLO with {type(reply).__name__}")
         sock.settimeout(None)
-        client = cls(sock, reply, name)
-        client._decoder = dec
-        client._pending = leftover
-        return client
+        return cls(sock, reply, name, dec, leftover)
 
     def send(self, msg: p.Message) -> None:
         self.send_raw(p.encode(msg))
