@@ -26,6 +26,7 @@ from harness.channel.events import (
     Close,
     PeerLink,
     PeerState,
+    Phase,
     PhaseState,
     Refused,
     Role,
@@ -40,6 +41,8 @@ from harness.channel.watchdog import JOIN, Watchdog
 from harness.wire import protocol as p
 
 log = logging.getLogger(__name__)
+
+_END_EVENT = {Phase.ZERO: "et0", Phase.ONE: "et1"}
 
 Trace = Callable[[str, int, str], None]
 """(event, tick, peer name): called on every phase transition when tracing."""
@@ -157,10 +160,10 @@ class TickMachine(Membership):
             self._on_end_tick_ac(peer, msg)
         elif isinstance(msg, p.EndTick0):
             peer.idle_until_ns, peer.deliver_wakes = msg.idle_until_ns, msg.deliver_wakes
-            self._on_phase_end(peer, msg.t_ns, self.wait0, self.t_ns, "0")
+            self._on_phase_end(peer, msg.t_ns, Phase.ZERO)
         elif isinstance(msg, p.EndTick1):
             peer.idle_until_ns = msg.idle_until_ns
-            self._on_phase_end(peer, msg.t_ns, self.wait1, self.p1_t_ns, "1")
+            self._on_phase_end(peer, msg.t_ns, Phase.ONE)
         elif isinstance(msg, p.Wake):
             peer.woken = True
         elif isinstance(msg, p.Enqueue):
@@ -187,14 +190,15 @@ class TickMachine(Membership):
             _check_local(m, eta)
             self._on_end_tick_ac(peer, eta)
 
-    def _on_phase_end(self, peer: PeerState, t_ns: int, waiting: set[PeerState], t_expected: int, ph: str) -> None:
+    def _on_phase_end(self, peer: PeerState, t_ns: int, phase: Phase) -> None:
         """END-TICK-0 / END-TICK-1: ``peer`` is done with this tick's phase (and only then may say so)."""
+        waiting, t_expected = (self.wait0, self.t_ns) if phase is Phase.ZERO else (self.wait1, self.p1_t_ns)
         if peer not in waiting or t_ns != t_expected:
-            self.fault(peer, f"sent END-TICK-{ph} for t={t_ns} ns out of phase", p.ErrorCode.UNEXPECTED)
+            self.fault(peer, f"sent END-TICK-{phase.value} for t={t_ns} ns out of phase", p.ErrorCode.UNEXPECTED)
             return
         waiting.discard(peer)
         self._answered(peer)
-        self._trace("et" + ph, peer)
+        self._trace(_END_EVENT[phase], peer)
         self._progress()
 
     def _on_end_tick_ac(self, peer: PeerState, msg: p.EndTickAC) -> None:
