@@ -93,13 +93,6 @@ class TickMachine(Membership):
         self._positions: dict[int, p.Vec3] = {}
 
     @property
-    def role(self) -> Role:
-        up = self.up
-        if up is None:
-            return Role.WAITING
-        return Role.ROOT if up.kind == p.PeerKind.PHYSICS else Role.CHILD
-
-    @property
     def in_tick(self) -> bool:
         return self.tick_state is not TickState.IDLE
 
@@ -125,7 +118,7 @@ class TickMachine(Membership):
         log.info("channel %s: %s joined (vehicles %s)", self.name, peer.label, sorted(peer.vehicles))
         if kind == p.PeerKind.PHYSICS:
             peer.upstream = peer.admitted = True
-            self.up = peer
+            self.set_upstream(peer)
         elif not self.in_tick or self.tick_state is TickState.AWAITING_HOLDERS:
             self._admit(peer)
             self._progress()
@@ -140,7 +133,7 @@ class TickMachine(Membership):
         up = PeerState(pid, "parent" if kind == p.PeerKind.CHILD else name, kind, link=link, upstream=True)
         up.admitted = True
         self.peers[pid] = up
-        self.up = up
+        self.set_upstream(up)
         return up
 
     def attach_in_process(self, pid: int, vehicles: Iterable[int], name: str = "in-process") -> PeerState:
@@ -214,8 +207,8 @@ class TickMachine(Membership):
             del self.wait_ac[peer]
             self._answered(peer)
             if not self.wait_ac:
-                self.tick_state = TickState.ANSWERED
-                if self.role is Role.CHILD:
+                self.tick_state = _ANSWERED
+                if self.role is _CHILD:
                     self._send_etas()  # a child answers for its subtree as soon as it can
         self._progress()
 
@@ -270,9 +263,9 @@ class TickMachine(Membership):
     def from_upstream(self, msg: p.Message) -> None:
         """A message from physics or the parent channel."""
         if isinstance(msg, p.BeginTickAC):
-            if self.tick_state is TickState.IDLE:
+            if self.tick_state is _IDLE:
                 self._begin_tick(msg.t_ns, msg.tick)
-            elif msg.t_ns != self.t_ns or self.tick_state is not TickState.COLLECTING:
+            elif msg.t_ns != self.t_ns or self.tick_state is not _COLLECTING:
                 raise RunFailed(f"upstream sent BEGIN-TICK-AC for t={msg.t_ns} ns while tick t={self.t_ns} ns runs")
             self._bta.append(msg)
             self._bta_count = msg.count
@@ -377,7 +370,7 @@ class TickMachine(Membership):
         self.wait_ac.pop(peer, None)
         self.peers.pop(peer.pid, None)
         if peer is self.up:
-            self.up = None
+            self.set_upstream(None)
         self.actions.append(Close(peer, error))
 
     # -- the tick -------------------------------------------------------------------------------------------
@@ -483,31 +476,30 @@ class TickMachine(Membership):
             self.send_raw(peer, data)
 
     def _progress(self) -> None:
-        """Advance the tick as far as the answers received allow."""
+        """Advance the tick as far as the answers received allow (called after every event: kept cheap)."""
         state = self.tick_state
-        if state is TickState.IDLE:
+        if state is _IDLE:
             return
-        if self._phase0_may_start():
+        if self.phase is _PENDING and self._phase0_may_start():
             self._start_phase0()  # the previous phase 1 has just ended
-        if state in (TickState.COLLECTING, TickState.AWAITING_HOLDERS) and 0 < self._bta_count <= len(self._bta):
+        if (state is _COLLECTING or state is _AWAITING) and 0 < self._bta_count <= len(self._bta):
             self._route_ticks()
-            if self._phase0_may_start():
+            if self.phase is _PENDING and self._phase0_may_start():
                 self._start_phase0()
-        if self.phase is PhaseState.ZERO and not self.wait0:
-            if self.role is Role.CHILD:
+        child = self.role is _CHILD
+        if self.phase is _ZERO and not self.wait0:
+            if child:
                 self.phase = PhaseState.ZERO_DONE
                 assert self.up is not None
                 self.send(self.up, p.EndTick0(self.t_ns))
-            elif self.tick_state is TickState.ANSWERED:
+            elif self.tick_state is _ANSWERED:
                 self.phase = PhaseState.ZERO_DONE
-        if self.role is Role.CHILD:
+        if child:
             self._progress_child()
-        else:
+        elif self.tick_state is _ANSWERED:
             self._progress_root()
 
     def _progress_root(self) -> None:
-        if self.tick_state is not TickState.ANSWERED:
-            return
         phase = self.phase
         if phase is PhaseState.PENDING or phase is PhaseState.ZERO:
             return
@@ -554,6 +546,11 @@ class TickMachine(Membership):
     def _trace(self, event: str, peer: PeerState | None) -> None:
         if self._trace_fn is not None:
             self._trace_fn(event, self.tick, peer.name if peer else "")
+
+
+# the states the hot path compares against, bound once (a module global is one lookup, an enum member two)
+_IDLE, _COLLECTING, _AWAITING = TickState.IDLE, TickState.COLLECTING, TickState.AWAITING_HOLDERS
+_ANSWERED, _PENDING, _ZERO, _CHILD = TickState.ANSWERED, PhaseState.PENDING, PhaseState.ZERO, Role.CHILD
 
 
 def _by_vehicle(eta: p.EndTickAC) -> int:

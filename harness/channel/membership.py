@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from harness.channel.events import Action, PeerLink, PeerState, Send
+from harness.channel.events import Action, PeerLink, PeerState, Role, Send
 from harness.wire import protocol as p
 
 
@@ -18,6 +18,8 @@ class Membership:
         self.name = name
         self.peers: dict[int, PeerState] = {}
         self.up: PeerState | None = None
+        self.role = Role.WAITING
+        """Decided by the upstream: physics makes this channel the root, a parent channel a child."""
         self.actions: list[Action] = []
         self.unadmitted = 0
         """Peers that joined during a tick; admitted when it ends."""
@@ -25,6 +27,13 @@ class Membership:
         self._routes: dict[int, list[PeerState]] | None = None
         self._holders: dict[int, PeerState] | None = None
         self._in_process: bool | None = None
+
+    def set_upstream(self, up: PeerState | None) -> None:
+        self.up = up
+        if up is None:
+            self.role = Role.WAITING
+        else:
+            self.role = Role.ROOT if up.kind == p.PeerKind.PHYSICS else Role.CHILD
 
     # -- output -------------------------------------------------------------------------------------------
 
