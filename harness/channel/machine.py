@@ -18,6 +18,7 @@ parent's BEGIN-TICK-0/1 and answers for its subtree.
 from __future__ import annotations
 
 import logging
+import operator
 from collections.abc import Callable, Iterable
 
 from harness.channel.config import Fault, MissionExit
@@ -140,6 +141,7 @@ class TickMachine(Membership):
         """Autopilots in the channel's own process, holding ``vehicles``: one more peer, stepped by action."""
         peer = PeerState(pid, name, p.PeerKind.AUTOPILOT, link=PeerLink.IN_PROCESS, vehicles=set(vehicles))
         self.peers[pid] = peer
+        self.in_process_peers += 1
         self._admit(peer)
         return peer
 
@@ -178,10 +180,18 @@ class TickMachine(Membership):
             self.fault(peer, f"sent {type(msg).__name__}, which it may not send", p.ErrorCode.UNEXPECTED)
 
     def local_answers(self, peer: PeerState, begin_ticks: Iterable[p.BeginTickAC], etas: list[p.EndTickAC]) -> None:
-        """The END-TICK-AC of in-process autopilots, after a :class:`StepLocal`."""
+        """The END-TICK-AC of in-process autopilots, after a :class:`StepLocal` (one step of the tick for all)."""
+        waiting = self.wait_ac.get(peer)
+        if waiting is None:
+            raise RunFailed(f"in-process autopilots {sorted(peer.vehicles)} answered a tick they were not asked")
+        stored = self._etas
         for m, eta in zip(begin_ticks, etas, strict=True):
             _check_local(m, eta)
-            self._on_end_tick_ac(peer, eta)
+            waiting.discard(m.vehicle)
+            stored[m.vehicle] = eta
+        if not waiting:
+            self._holder_done(peer)
+        self._progress()
 
     def _on_phase_end(self, peer: PeerState, t_ns: int, phase: Phase) -> None:
         """END-TICK-0 / END-TICK-1: ``peer`` is done with this tick's phase (and only then may say so)."""
@@ -204,13 +214,17 @@ class TickMachine(Membership):
         waiting.discard(msg.vehicle)
         self._etas[msg.vehicle] = msg
         if not waiting:
-            del self.wait_ac[peer]
-            self._answered(peer)
-            if not self.wait_ac:
-                self.tick_state = _ANSWERED
-                if self.role is _CHILD:
-                    self._send_etas()  # a child answers for its subtree as soon as it can
+            self._holder_done(peer)
         self._progress()
+
+    def _holder_done(self, peer: PeerState) -> None:
+        """Every vehicle of ``peer`` answered this tick."""
+        del self.wait_ac[peer]
+        self._answered(peer)
+        if not self.wait_ac:
+            self.tick_state = _ANSWERED
+            if self.role is _CHILD:
+                self._send_etas()  # a child answers for its subtree as soon as it can
 
     def _on_enqueue(self, peer: PeerState, msg: p.Enqueue) -> None:
         if peer not in self.wait0:
@@ -270,6 +284,8 @@ class TickMachine(Membership):
             self._bta.append(msg)
             self._bta_count = msg.count
             self._positions[msg.vehicle] = msg.position_ned_m
+            if len(self._bta) < msg.count and (self.phase is not _PENDING or self.in_process_peers):
+                return  # more of this tick to come, and nothing can move before they are in
         elif isinstance(msg, p.BeginTick0):  # child: the parent runs phase 0 now
             if self.tick_state is TickState.IDLE:
                 self._begin_tick(msg.t_ns, msg.tick)
@@ -310,7 +326,8 @@ class TickMachine(Membership):
         self.t_ns, self.tick = first.t_ns, first.tick
         self._trace("eta_up", None)
         self.ticks_done += 1
-        return sorted(etas, key=_by_vehicle)
+        etas.sort(key=_by_vehicle)
+        return etas
 
     # -- faults -------------------------------------------------------------------------------------------
 
@@ -363,6 +380,8 @@ class TickMachine(Membership):
         if peer.closed:
             return
         peer.closed = True
+        if peer.link is _IN_PROCESS and not peer.upstream:
+            self.in_process_peers -= 1
         self.membership_changed()
         self.watchdog.clear(peer.pid)
         self.wait0.discard(peer)
@@ -391,11 +410,14 @@ class TickMachine(Membership):
         """Phase 0 starts once the previous phase 1 is over and after the in-process autopilots have stepped
         this tick: what they send their missions over MAVLink at this tick is then in the missions' sockets
         before phase 0 begins, so a script reads it in this phase whatever the machine's pace."""
-        if self.phase is not PhaseState.PENDING or self.wait1:
+        if self.phase is not _PENDING or self.wait1:
             return False
-        if self.tick_state in (TickState.COLLECTING, TickState.AWAITING_HOLDERS):
-            return not self.has_in_process()
-        return not any(peer.link is PeerLink.IN_PROCESS for peer in self.wait_ac)
+        if not self.in_process_peers:
+            return True
+        state = self.tick_state
+        if state is _COLLECTING or state is _AWAITING:
+            return False
+        return all(peer.link is not _IN_PROCESS for peer in self.wait_ac)
 
     def _route_ticks(self) -> None:
         """Forward this tick's BEGIN-TICK-AC to the holders of the vehicles, with per-holder counts."""
@@ -412,13 +434,15 @@ class TickMachine(Membership):
         by_peer: dict[PeerState, list[p.BeginTickAC]] = {}
         for m in self._bta:
             by_peer.setdefault(holders[m.vehicle], []).append(m)
-        deadline = self.watchdog.deadline(self.stall_timeout_s)
+        deadline = -1  # read the clock only if a remote holder is asked
         local: list[StepLocal] = []
         for peer, msgs in by_peer.items():
             self.wait_ac[peer] = {m.vehicle for m in msgs}
-            if peer.link is PeerLink.IN_PROCESS:
+            if peer.link is _IN_PROCESS:
                 local.append(StepLocal(peer, tuple(msgs)))
                 continue
+            if deadline < 0:
+                deadline = self.watchdog.deadline(self.stall_timeout_s)
             n = len(msgs)
             self.watchdog.arm(peer.pid, deadline)
             peer.waiting_for = f"END-TICK-AC of tick {self.tick}"
@@ -429,12 +453,15 @@ class TickMachine(Membership):
         if self.phase in (PhaseState.ZERO, PhaseState.ZERO_DONE, PhaseState.ONE):
             return
         self.phase = PhaseState.ZERO
+        self._trace("bt0", None)
+        peers = self.active(p.PeerKind.TYPE0, p.PeerKind.CHILD)
+        if not peers:
+            return
         data = p.encode(p.BeginTick0(self.t_ns, self.tick))
         deadline = self.watchdog.deadline(self.stall_timeout_s)
-        self._trace("bt0", None)
         t = self.t_ns
         what = f"END-TICK-0 of tick {self.tick}"
-        for peer in list(self.active(p.PeerKind.TYPE0, p.PeerKind.CHILD)):
+        for peer in list(peers):
             if (
                 peer.kind == p.PeerKind.TYPE0
                 and peer.idle_until_ns > t
@@ -553,8 +580,8 @@ _IDLE, _COLLECTING, _AWAITING = TickState.IDLE, TickState.COLLECTING, TickState.
 _ANSWERED, _PENDING, _ZERO, _CHILD = TickState.ANSWERED, PhaseState.PENDING, PhaseState.ZERO, Role.CHILD
 
 
-def _by_vehicle(eta: p.EndTickAC) -> int:
-    return eta.vehicle
+_by_vehicle = operator.attrgetter("vehicle")
+_IN_PROCESS = PeerLink.IN_PROCESS
 
 
 def _with_count(m: p.BeginTickAC, n: int) -> p.BeginTickAC:

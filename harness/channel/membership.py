@@ -22,11 +22,12 @@ class Membership:
         """Decided by the upstream: physics makes this channel the root, a parent channel a child."""
         self.actions: list[Action] = []
         self.unadmitted = 0
+        self.in_process_peers = 0
+        """In-process autopilot peers: phase 0 waits for their step in every tick."""
         """Peers that joined during a tick; admitted when it ends."""
         self._members: dict[p.PeerKind, list[PeerState]] | None = None
         self._routes: dict[int, list[PeerState]] | None = None
         self._holders: dict[int, PeerState] | None = None
-        self._in_process: bool | None = None
 
     def set_upstream(self, up: PeerState | None) -> None:
         self.up = up
@@ -55,13 +56,14 @@ class Membership:
         if not self.unadmitted:
             return
         self.unadmitted = 0
+        self.in_process_peers = 0
+        """In-process autopilot peers: phase 0 waits for their step in every tick."""
         for peer in list(self.peers.values()):
             if not peer.admitted and not peer.closed:
                 self._admit(peer)
 
     def membership_changed(self) -> None:
         self._members = self._routes = self._holders = None
-        self._in_process = None
 
     def _announce_up(self) -> None:
         up = self.up
@@ -117,14 +119,6 @@ class Membership:
                 routes.setdefault(peer.vehicle, []).append(peer)
             self._routes = routes
         return routes
-
-    def has_in_process(self) -> bool:
-        found = self._in_process
-        if found is None:
-            found = self._in_process = any(
-                peer.link is PeerLink.IN_PROCESS for peer in self.active(p.PeerKind.AUTOPILOT)
-            )
-        return found
 
     def held_vehicles(self) -> set[int]:
         """Vehicles some autopilot or child below this channel holds (admitted or about to be)."""
