@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from harness.wire import protocol as p
 
@@ -114,19 +115,17 @@ class PeerState:
         return ""
 
 
-# --- actions ---------------------------------------------------------------------------------------
+# --- actions (named tuples: one is made per message sent, so they must be cheap) -----------------------
 
 
-@dataclass(frozen=True, slots=True)
-class Send:
+class Send(NamedTuple):
     """Queue ``data`` (whole frames) for ``peer``."""
 
     peer: PeerState
     data: bytes
 
 
-@dataclass(frozen=True, slots=True)
-class StepLocal:
+class StepLocal(NamedTuple):
     """Step the in-process autopilots of ``peer`` with these BEGIN-TICK-AC (after flushing what is queued,
     so remote peers work meanwhile) and feed their END-TICK-AC back (``TickMachine.local_answers``)."""
 
@@ -134,23 +133,20 @@ class StepLocal:
     begin_ticks: tuple[p.BeginTickAC, ...]
 
 
-@dataclass(frozen=True, slots=True)
-class Close:
+class Close(NamedTuple):
     """Close ``peer``'s connection: ``error`` (a frame, may be empty) first, then what was queued."""
 
     peer: PeerState
     error: bytes = b""
 
 
-@dataclass(frozen=True, slots=True)
-class TickDone:
+class TickDone(NamedTuple):
     """The tick of a local physics is over: its END-TICK-AC, by vehicle."""
 
     end_ticks: tuple[p.EndTickAC, ...]
 
 
-@dataclass(frozen=True, slots=True)
-class Stop:
+class Stop(NamedTuple):
     """The run is over (physics or the upstream left): send BYE ``reason`` to every peer below and stop."""
 
     reason: str
