@@ -22,10 +22,10 @@ import time
 
 from harness.autopilot.api import FlightMode
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+from harness.channel import Channel, ChannelConfig
 from harness.fdm.frame import encode_frame
 from harness.fdm.physics import Physics, PhysicsConfig
-from harness.simclock import protocol as p
-from harness.simclock.channel import Channel, ChannelConfig
+from harness.wire import protocol as p
 
 TICK_HZ = 250
 SUBSTEP_HZ = 1000

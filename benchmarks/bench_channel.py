@@ -22,8 +22,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.simclock.channel import Channel, ChannelConfig
-from harness.simclock.drivers import run_fake_physics, run_fake_physics_local
+from harness.channel import Channel, ChannelConfig
+from harness.channel.drivers import run_fake_physics, run_fake_physics_local
 
 
 @dataclass
@@ -71,7 +71,7 @@ def run_case(transport: str, vehicles: int, type0: int, type1: int, ticks: int) 
 
         def start(*args: str) -> None:
             ready.append(tmp / f"ready-{len(ready)}")
-            drv = [py, "-m", "harness.simclock.drivers", *args, "--address", address, "--ready", str(ready[-1])]
+            drv = [py, "-m", "harness.channel.drivers", *args, "--address", address, "--ready", str(ready[-1])]
             procs.append(subprocess.Popen(drv))
 
         start("autopilot", *[a for v in range(vehicles) for a in ("--vehicle", str(v))])

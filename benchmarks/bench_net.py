@@ -16,7 +16,7 @@ import time
 
 from harness.net.builtin import BuiltinRadio
 from harness.net.model import NetworkModel
-from harness.simclock.protocol import BROADCAST, Packet
+from harness.wire.protocol import BROADCAST, Packet
 
 PERIOD_NS = 20_000_000
 

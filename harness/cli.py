@@ -38,8 +38,8 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
 
 
 def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
+    from harness.channel import Channel, ChannelConfig
     from harness.secrets import channel_secret
-    from harness.simclock.channel import Channel, ChannelConfig
 
     if a.secret:
         print("harness channel: --secret shows in ps; prefer --secret-file or $HARNESS_SECRET", file=sys.stderr)

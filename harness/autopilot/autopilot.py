@@ -43,7 +43,7 @@ from harness.autopilot.validate import check_mission, finite
 from harness.errors import ScenarioError
 from harness.fdm.frame import SensorFrame
 from harness.simclock.clock import Clock, WallClock
-from harness.simclock.protocol import pack_status
+from harness.wire.protocol import pack_status
 
 
 @dataclass(frozen=True)

@@ -22,8 +22,8 @@ import msgspec
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.frame import decode_frame
-from harness.simclock import protocol as p
-from harness.simclock.client import ChannelClient, ChannelClosed
+from harness.wire import protocol as p
+from harness.wire.client import ChannelClient, ChannelClosed
 
 log = logging.getLogger(__name__)
 

@@ -26,9 +26,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Protocol
 
+from harness.channel import Channel
 from harness.fdm.frame import SensorFrame, encode_frame
-from harness.simclock import protocol as p
-from harness.simclock.channel import Channel
+from harness.wire import protocol as p
 
 Motors = tuple[float, ...]
 

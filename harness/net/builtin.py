@@ -30,7 +30,7 @@ import numpy as np
 
 from harness.errors import ScenarioError
 from harness.net.model import Delivery, Drop, DropCause, StepResult, Vec3
-from harness.simclock.protocol import BROADCAST, Packet
+from harness.wire.protocol import BROADCAST, Packet
 
 C_M_S = 299_792_458.0
 

@@ -7,7 +7,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE, Packet
+from harness.wire.protocol import EVERY_PHASE, NO_DEADLINE, Packet
 
 Vec3 = tuple[float, float, float]
 

@@ -27,7 +27,7 @@ from typing import Any
 
 from harness.errors import ScenarioError
 from harness.net.model import Delivery, StepResult, Vec3
-from harness.simclock.protocol import BROADCAST, Packet
+from harness.wire.protocol import BROADCAST, Packet
 
 _STANDARDS = {"80211a": "WIFI_STANDARD_80211a", "80211g": "WIFI_STANDARD_80211g", "80211n": "WIFI_STANDARD_80211n"}
 _RATES = {"80211a": "OfdmRate6Mbps", "80211g": "ErpOfdmRate6Mbps", "80211n": "HtMcs0"}

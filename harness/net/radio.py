@@ -17,8 +17,8 @@ import os
 from dataclasses import dataclass
 
 from harness.errors import HarnessError
-from harness.simclock.protocol import BROADCAST
 from harness.simclock.runtime import Delivery, SimRuntime, current
+from harness.wire.protocol import BROADCAST
 
 
 @dataclass(frozen=True)

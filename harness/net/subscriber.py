@@ -20,8 +20,8 @@ from typing import IO
 
 from harness.errors import HarnessError, ScenarioError
 from harness.net.model import NetworkModel, StepResult, lookahead_ns
-from harness.simclock import protocol as p
-from harness.simclock.client import ChannelClient, ChannelClosed
+from harness.wire import protocol as p
+from harness.wire.client import ChannelClient, ChannelClosed
 
 log = logging.getLogger(__name__)
 

@@ -20,9 +20,9 @@ from typing import Any
 
 from harness.simclock import simsocket
 from harness.simclock.endpoints import VehicleEndpoints, udp_listen_redirected
-from harness.simclock.protocol import BROADCAST
 from harness.simclock.runtime import SimRuntime
 from harness.simclock.simsocket import SimSocket
+from harness.wire.protocol import BROADCAST
 
 _original_socket = simsocket._original_socket
 

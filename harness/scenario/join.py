@@ -28,13 +28,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from harness.autopilot.firmware import Firmware
+from harness.channel import Channel, ChannelConfig
 from harness.errors import ScenarioError, SimulationError
 from harness.scenario import tree
 from harness.scenario.children import Children
 from harness.scenario.launcher import MissionPlan
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
 from harness.scenario.swarm import mission_argv
-from harness.simclock.channel import Channel, ChannelConfig
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep
 
 log = logging.getLogger(__name__)

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware, firmware_of
+from harness.channel import Channel, ChannelConfig
 from harness.errors import ScenarioError, SimulationError
 from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
@@ -33,9 +34,8 @@ from harness.scenario import swarm, tree
 from harness.scenario.children import Children
 from harness.scenario.limits import check_plan
 from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
-from harness.simclock import protocol as p
-from harness.simclock.channel import Channel, ChannelConfig
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep, real_time_ns
+from harness.wire import protocol as p
 
 log = logging.getLogger(__name__)
 

@@ -22,11 +22,11 @@ from pathlib import Path
 
 from harness.errors import ScenarioError
 from harness.simclock import mavsdk_compat, patch
-from harness.simclock import protocol as p
-from harness.simclock.client import ChannelClient, ChannelClosed
 from harness.simclock.clock import real_sleep
 from harness.simclock.endpoints import VehicleEndpoints
 from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
+from harness.wire import protocol as p
+from harness.wire.client import ChannelClient, ChannelClosed
 
 log = logging.getLogger(__name__)
 

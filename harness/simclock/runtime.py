@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from types import FrameType
 
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns
-from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE
+from harness.wire.protocol import EVERY_PHASE, NO_DEADLINE
 
 log = logging.getLogger(__name__)
 

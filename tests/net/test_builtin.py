@@ -9,7 +9,7 @@ import pytest
 
 from harness.net.builtin import C_M_S, BuiltinRadio, RadioConfig
 from harness.net.model import DropCause
-from harness.simclock.protocol import BROADCAST, Packet
+from harness.wire.protocol import BROADCAST, Packet
 
 PERIOD = 20_000_000
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from harness.pytest_plugin import RunRecord
-from harness.simclock.protocol import BROADCAST, Packet
+from harness.wire.protocol import BROADCAST, Packet
 
 ns3model = pytest.importorskip("harness.net.ns3model")
 pytest.importorskip("ns")

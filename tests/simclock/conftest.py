@@ -27,7 +27,7 @@ class Procs:
         self, role: str, address: str, *args: str, name: str | None = None
     ) -> tuple[subprocess.Popen[str], Path]:
         trace = self.tmp / f"{name or role}-{len(self.procs)}.json"
-        cmd = [sys.executable, "-m", "harness.simclock.drivers", role, "--address", address, "--trace", str(trace)]
+        cmd = [sys.executable, "-m", "harness.channel.drivers", role, "--address", address, "--trace", str(trace)]
         if name:
             cmd += ["--name", name]
         proc = subprocess.Popen([*cmd, *args], text=True)

@@ -10,11 +10,11 @@ import time
 
 import pytest
 
+from harness.channel import Channel, ChannelConfig
+from harness.channel.drivers import run_fake_physics
 from harness.errors import ScenarioError, SimulationError
-from harness.simclock import protocol as p
-from harness.simclock.channel import Channel, ChannelConfig
-from harness.simclock.client import ChannelClient, ChannelClosed
-from harness.simclock.drivers import run_fake_physics
+from harness.wire import protocol as p
+from harness.wire.client import ChannelClient, ChannelClosed
 
 from .conftest import Procs, load, wait_until
 

@@ -7,8 +7,8 @@ from typing import Any
 
 import pytest
 
-from harness.simclock.channel import Channel, ChannelConfig
-from harness.simclock.drivers import fake_position, run_fake_physics
+from harness.channel import Channel, ChannelConfig
+from harness.channel.drivers import fake_position, run_fake_physics
 
 from .conftest import Procs, load, wait_until
 

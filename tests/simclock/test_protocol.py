@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from harness.simclock import protocol as p
+from harness.wire import protocol as p
 
 i64 = st.integers(min_value=0, max_value=2**62)
 veh = st.integers(min_value=-1, max_value=10_000)

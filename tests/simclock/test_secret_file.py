@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from harness.errors import ScenarioError, SimulationError
-from harness.simclock import protocol as p
-from harness.simclock.client import ChannelClient
+from harness.wire import protocol as p
+from harness.wire.client import ChannelClient
 
 SECRET = "correct horse battery staple 4711"
 

@@ -12,9 +12,9 @@ import time
 
 import pytest
 
+from harness.channel import Channel, ChannelConfig
+from harness.channel.drivers import run_fake_physics
 from harness.simclock import patch
-from harness.simclock.channel import Channel, ChannelConfig
-from harness.simclock.drivers import run_fake_physics
 from harness.simclock.runtime import SimRuntime
 
 from .conftest import Procs, wait_until

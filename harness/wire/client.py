@@ -22,8 +22,8 @@ from types import TracebackType
 
 from harness.errors import SimulationError
 from harness.secrets import channel_secret
-from harness.simclock import protocol as p
-from harness.simclock.transport import Address, connect, parse_address
+from harness.wire import protocol as p
+from harness.wire.transport import Address, connect, parse_address
 
 
 class ChannelClosed(SimulationError):
@@ -31,12 +31,19 @@ class ChannelClosed(SimulationError):
 
 
 class ChannelClient:
-    def __init__(self, sock: socket.socket, welcome: p.Welcome, name: str) -> None:
+    def __init__(
+        self,
+        sock: socket.socket,
+        welcome: p.Welcome,
+        name: str,
+        decoder: p.FrameDecoder | None = None,
+        pending: list[p.Message] | None = None,
+    ) -> None:
         self.sock = sock
         self.welcome = welcome
         self.name = name
-        self._decoder = p.FrameDecoder()
-        self._pending: list[p.Message] = []
+        self._decoder = decoder or p.FrameDecoder()
+        self._pending: list[p.Message] = pending or []
         self._wlock = threading.Lock()
         self.closed = False
 
@@ -86,10 +93,7 @@ class ChannelClient:
             sock.close()
             raise SimulationError(f"channel at {addr} answered HELLO with {type(reply).__name__}")
         sock.settimeout(None)
-        client = cls(sock, reply, name)
-        client._decoder = dec
-        client._pending = leftover
-        return client
+        return cls(sock, reply, name, dec, leftover)
 
     def send(self, msg: p.Message) -> None:
         self.send_raw(p.encode(msg))
@@ -128,6 +132,13 @@ class ChannelClient:
         first, rest = msgs[0], msgs[1:]
         self._pending = rest + self._pending
         return first
+
+    def hand_over(self) -> tuple[socket.socket, p.FrameDecoder, list[p.Message]]:
+        """Give the connection to an event loop (a child channel's shell): the socket, the decoder with any
+        partial frame in it, and the messages already decoded but not yet read. This client is done."""
+        pending, self._pending = self._pending, []
+        self.closed = True
+        return self.sock, self._decoder, pending
 
     def close(self, reason: str = "", exit_code: int = 0) -> None:
         if self.closed:

@@ -6,10 +6,10 @@ own, without JSBSim or an autopilot. Each records a trace of what it saw and whe
 
 Run one as a process::
 
-    python -m harness.simclock.drivers physics   --address tcp://127.0.0.1:5760 --vehicles 3 --ticks 100
-    python -m harness.simclock.drivers autopilot --address ... --vehicle 0 --vehicle 1
-    python -m harness.simclock.drivers type0     --address ... --name m0 --vehicle 0 --work-us 200
-    python -m harness.simclock.drivers type1     --address ... --name net --work-us 200
+    python -m harness.channel.drivers physics   --address tcp://127.0.0.1:5760 --vehicles 3 --ticks 100
+    python -m harness.channel.drivers autopilot --address ... --vehicle 0 --vehicle 1
+    python -m harness.channel.drivers type0     --address ... --name m0 --vehicle 0 --work-us 200
+    python -m harness.channel.drivers type1     --address ... --name net --work-us 200
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harness.simclock import protocol as p
-from harness.simclock.channel import Channel
-from harness.simclock.client import ChannelClient, ChannelClosed
+from harness.channel import Channel
 from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep
+from harness.wire import protocol as p
+from harness.wire.client import ChannelClient, ChannelClosed
 
 log = logging.getLogger(__name__)
 
@@ -227,7 +227,7 @@ def run_fake_type1(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m harness.simclock.drivers")
+    ap = argparse.ArgumentParser(prog="python -m harness.channel.drivers")
     ap.add_argument("role", choices=["physics", "autopilot", "type0", "type1"])
     ap.add_argument("--address", required=True)
     ap.add_argument("--name", default=None)

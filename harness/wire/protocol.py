@@ -54,6 +54,10 @@ PROTOCOL_VERSION: Final = 2
 MAX_FRAME_BYTES: Final = 16 * 1024 * 1024
 """Frames larger than this are refused as malformed (a garbage length prefix must not allocate GBs)."""
 
+MAX_HELLO_BYTES: Final = 64 * 1024
+"""Limit on a frame from a peer that has not been admitted yet (its HELLO): an unauthenticated connection
+holds at most this much of the channel's memory. A HELLO of an autopilot holding 20,000 vehicles fits."""
+
 BROADCAST: Final = -1
 """Destination vehicle of a broadcast packet."""
 
