@@ -53,13 +53,21 @@ def sweep_cmd(scenario: Path, out: Path, *args: str) -> list[str]:
     return [sys.executable, "-m", "harness.cli", "sweep", str(scenario), "--out", str(out), *args]
 
 
+def _status(summary: Path) -> str:
+    try:
+        return str(json.loads(summary.read_text())["status"])
+    except (OSError, ValueError, KeyError):
+        return "running"  # being written
+
+
 def interrupt_when(proc: subprocess.Popen[str], out: Path, ok_runs: int, running: int, timeout_s: float = 90) -> float:
     """Wait for ``ok_runs`` finished runs and ``running`` runs under way (their missions started), then
     Ctrl-C the sweep; returns the seconds until the sweep and every process of its runs were gone."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        done = [p for p in out.glob("*/summary.json") if json.loads(p.read_text())["status"] == "ok"]
-        going = [d for d in out.glob("*/mission-0.stdout") if not (d.parent / "summary.json").exists()]
+        status = {p.parent: _status(p) for p in out.glob("*/summary.json")}  # "running" while a run goes on
+        done = [d for d, s in status.items() if s == "ok"]
+        going = [d.parent for d in out.glob("*/mission-0.stdout") if status.get(d.parent, "running") == "running"]
         if len(done) >= ok_runs and len(going) >= running:
             break
         assert proc.poll() is None, proc.communicate()
