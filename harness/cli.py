@@ -13,11 +13,12 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from harness.errors import HarnessError, ScenarioError
+from harness.core.errors import HarnessError, ScenarioError
 
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
-    from harness.scenario.launcher import Launcher, LaunchPlan
+    from harness.run.launcher import Launcher
+    from harness.scenario.plan import LaunchPlan
     from harness.sweep.runner import SweepProgress
 
 
@@ -89,7 +90,7 @@ def _progress_printer() -> Callable[[str], None]:
 
 
 def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None) -> LaunchPlan:
-    from harness.scenario.launcher import LaunchPlan, MissionPlan
+    from harness.scenario.plan import LaunchPlan, MissionPlan
 
     if getattr(a, "scenario", None):
         from harness.scenario.config import load_scenario
@@ -203,7 +204,7 @@ def _live_view(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, lis
 
 
 def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.scenario.launcher import Launcher
+    from harness.run.launcher import Launcher
 
     _terminate_as_interrupt()
     plan = _plan_from_args(a, rest)
@@ -301,7 +302,7 @@ def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
 
 def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     """Vehicles at real time for a ground station and hand-run scripts, until Ctrl-C."""
-    from harness.scenario.launcher import Launcher
+    from harness.run.launcher import Launcher
 
     a.mission, a.duration, a.plot = [], None, False
     _terminate_as_interrupt()

@@ -35,9 +35,9 @@ from harness.autopilot.params import Params
 from harness.autopilot.snapshot import build_state
 from harness.autopilot.supervisor import arming_check, supervise
 from harness.autopilot.validate import check_mission, finite
-from harness.errors import ScenarioError
+from harness.core.clock import Clock, WallClock
+from harness.core.errors import ScenarioError
 from harness.fdm.frame import SensorFrame
-from harness.simclock.clock import Clock, WallClock
 from harness.simclock.protocol import pack_status
 
 _NO_RC = frozenset({FlightMode.MANUAL, FlightMode.STABILIZED})

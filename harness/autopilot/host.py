@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import msgspec
 
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.fdm.frame import decode_frame
 from harness.simclock import protocol as p
 from harness.simclock.client import ChannelClient, ChannelClosed

@@ -31,8 +31,8 @@ from harness.autopilot.mavlink.param_store import persist_params
 from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
-from harness.errors import HarnessError, ScenarioError
-from harness.simclock.clock import real_time_ns
+from harness.core.clock import real_time_ns
+from harness.core.errors import HarnessError, ScenarioError
 
 log = logging.getLogger(__name__)
 

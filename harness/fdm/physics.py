@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import jsbsim
 import numpy as np
 
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.fdm.environment import TURBULENCE_LEVELS, Turbulence, WindConfig, WorldOrigin
 from harness.fdm.frame import MOTOR_COUNT, SensorFrame, Truth
 from harness.fdm.params import DEFAULT_QUAD, FT_PER_M, G_M_S2, M_PER_FT, N_PER_LBF, QuadParams, models_root

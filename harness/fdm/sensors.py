@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.fdm.frame import Baro, Gps, Imu, Mag, Vec3
 
 Quat = tuple[float, float, float, float]

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.net.model import Delivery, Drop, DropCause, StepResult, Vec3
 from harness.simclock.protocol import BROADCAST, Packet
 

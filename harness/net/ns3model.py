@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.net.model import Delivery, StepResult, Vec3
 from harness.simclock.protocol import BROADCAST, Packet
 

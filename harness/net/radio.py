@@ -16,7 +16,7 @@ import asyncio
 import os
 from dataclasses import dataclass
 
-from harness.errors import HarnessError
+from harness.core.errors import HarnessError
 from harness.simclock.protocol import BROADCAST
 from harness.simclock.runtime import Delivery, SimRuntime, current
 

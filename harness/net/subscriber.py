@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import IO
 
-from harness.errors import HarnessError, ScenarioError
+from harness.core.errors import HarnessError, ScenarioError
 from harness.net.model import NetworkModel, StepResult, lookahead_ns
 from harness.simclock import protocol as p
 from harness.simclock.client import ChannelClient, ChannelClosed

@@ -39,8 +39,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from harness.core.clock import NS_PER_S, real_monotonic_ns
 from harness.record.links import LinkTracker, ratio_color
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
 
 if TYPE_CHECKING:
     from harness.autopilot.api import AutopilotApi, MissionItem

@@ -20,7 +20,7 @@ from typing import Any, BinaryIO
 import msgspec
 from mcap.writer import CompressionType, Writer
 
-from harness.simclock.clock import NS_PER_S
+from harness.core.clock import NS_PER_S
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _XYZ = {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}

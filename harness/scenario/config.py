@@ -1,4 +1,4 @@
-"""Scenario files (TOML): validated into a :class:`~harness.scenario.launcher.LaunchPlan`.
+"""Scenario files (TOML): validated into a :class:`~harness.run.launcher.LaunchPlan`.
 
 Every error is a :class:`ScenarioError` whose message is one line naming the file, the field and what is
 wrong (``scenario.toml: vehicles[1].mission: file missions/x.py does not exist``). Unknown keys get the
@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware
-from harness.errors import ScenarioError
-from harness.scenario.launcher import LaunchPlan, MissionPlan
+from harness.core.errors import ScenarioError
+from harness.scenario.plan import LaunchPlan, MissionPlan
 
 _TOP = {
     "seed",

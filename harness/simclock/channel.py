@@ -32,9 +32,9 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from harness.errors import ScenarioError, SimulationError
+from harness.core.clock import NS_PER_S, real_monotonic_ns, real_time_ns
+from harness.core.errors import ScenarioError, SimulationError
 from harness.simclock import protocol as p
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_time_ns
 from harness.simclock.transport import Address, accept_tuned, connect, listen, parse_address
 
 log = logging.getLogger(__name__)

@@ -21,7 +21,7 @@ import socket
 import threading
 from types import TracebackType
 
-from harness.errors import SimulationError
+from harness.core.errors import SimulationError
 from harness.simclock import protocol as p
 from harness.simclock.transport import Address, connect, parse_address
 

@@ -23,10 +23,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from harness.core.clock import NS_PER_S, real_monotonic_ns, real_sleep
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel
 from harness.simclock.client import ChannelClient, ChannelClosed
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep
 
 log = logging.getLogger(__name__)
 

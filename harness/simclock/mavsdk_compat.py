@@ -6,7 +6,7 @@
   resolve to ``mavsdk_grpc`` (PyPI ``mavsdk-grpc``), which is the old API under a new name.
 - Scripts written for one vehicle listen on the standard port 14540 (``udpin://0.0.0.0:14540``,
   ``udp://:14540``). The runner points them at the vehicle's own port instead (``udpout://127.0.0.1:P``,
-  :mod:`harness.simclock.endpoints`), so one unmodified script flies every vehicle of a swarm, and no
+  :mod:`harness.core.endpoints`), so one unmodified script flies every vehicle of a swarm, and no
   other run's script can reach this run's vehicles.
 - The gRPC API starts a ``mavsdk_server`` per ``System()`` on gRPC port 50051 by default; with several
   missions on one machine those collide, so the default becomes a free port.
@@ -26,7 +26,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from harness.simclock.endpoints import VehicleEndpoints, mavsdk_url
+from harness.core.endpoints import VehicleEndpoints, mavsdk_url
 
 log = logging.getLogger(__name__)
 
@@ -174,7 +174,7 @@ def install(script: Path, ep: VehicleEndpoints | None, api: str | None = None) -
         try:
             importlib.import_module("mavsdk_grpc")
         except ImportError:
-            from harness.errors import ScenarioError
+            from harness.core.errors import ScenarioError
 
             raise ScenarioError(
                 f"{script} uses the old gRPC MAVSDK API (from mavsdk import System … await drone.connect()); "

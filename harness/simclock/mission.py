@@ -20,12 +20,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.errors import ScenarioError
+from harness.core.clock import real_sleep
+from harness.core.endpoints import VehicleEndpoints
+from harness.core.errors import ScenarioError
 from harness.simclock import mavsdk_compat, patch
 from harness.simclock import protocol as p
 from harness.simclock.client import ChannelClient, ChannelClosed
-from harness.simclock.clock import real_sleep
-from harness.simclock.endpoints import VehicleEndpoints
 from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
 
 log = logging.getLogger(__name__)
@@ -179,7 +179,7 @@ def run_mission(spec: MissionSpec) -> int:
     os.environ.setdefault("HARNESS_SYSID", str(spec.vehicle + 1))
     patch.install(rt)
     ep = VehicleEndpoints.from_env(spec.vehicle)
-    from harness.net import udp
+    from harness.simclock import udp
 
     udp.install(rt, ep)  # sockets: sim-time waits, MAVLink to this vehicle, UDP to 10.42.0.x on the radio
     api = mavsdk_compat.install(spec.script, ep, os.environ.get("HARNESS_MAVSDK_API") or None)

@@ -18,8 +18,8 @@ from collections.abc import Callable, Mapping
 from itertools import islice
 from typing import Any
 
+from harness.core.clock import NS_PER_S, real_monotonic_ns
 from harness.simclock import iowait
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
 from harness.simclock.runtime import SimRuntime, Waiter, set_current
 
 _originals: dict[tuple[object, str], Any] = {}

@@ -31,7 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import FrameType
 
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+from harness.core.clock import NS_PER_S, real_monotonic_ns
 from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE
 
 log = logging.getLogger(__name__)
@@ -282,7 +282,7 @@ class SimRuntime:
     def sleep_ns(self, ns: int) -> None:
         """Block the calling thread for ``ns`` of sim time (at least until a later phase 0)."""
         if not self._tracked():
-            from harness.simclock.clock import real_sleep
+            from harness.core.clock import real_sleep
 
             real_sleep(max(0, ns) / NS_PER_S)
             return

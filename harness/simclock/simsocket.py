@@ -6,7 +6,7 @@ connection to the channel exists). The kernel socket underneath is always non-bl
 ``setblocking(False)`` raise ``BlockingIOError`` at once, a timeout is sim time and raises ``TimeoutError``,
 and ``None`` blocks (idle for the sim clock) until data comes.
 
-MAVLink addresses are mapped to the mission's own vehicle (:mod:`harness.simclock.endpoints`):
+MAVLink addresses are mapped to the mission's own vehicle (:mod:`harness.core.endpoints`):
 
 - a UDP socket bound to a port scripts listen on (14540, 14550, 14551 on a local or wildcard address) is
   bound to a free loopback port instead and announces itself to its vehicle (one ``LISTEN_HELLO``
@@ -24,8 +24,7 @@ import socket as _socket
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from harness.simclock import iowait
-from harness.simclock.endpoints import (
+from harness.core.endpoints import (
     LISTEN_HELLO,
     SETTLE_PREFIX,
     VehicleEndpoints,
@@ -33,6 +32,7 @@ from harness.simclock.endpoints import (
     udp_destination,
     udp_listen_redirected,
 )
+from harness.simclock import iowait
 from harness.simclock.runtime import SimRuntime
 
 _original_socket = _socket.socket
@@ -97,7 +97,7 @@ class SimSocket(_original_socket):
             iowait.wait(rt, [] if write else [fd], [fd] if write else [], deadline, inbox=self._waits_on_inbox())
 
     def _sim_ready(self) -> bool:
-        """Data the runtime holds for this socket (radio packets); see ``harness.net.udp``."""
+        """Data the runtime holds for this socket (radio packets); see ``harness.simclock.udp``."""
         return False
 
     def _waits_on_inbox(self) -> bool:

@@ -15,7 +15,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.sweep.results import RunStatus, read_results
 
 _SKIP = {"seed", "faults", "mission_exit_code"}

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.sweep.results import RunStatus, write_results
 from harness.sweep.spec import SweepSpec
 from harness.sweep.task import RunJob, finished_row, run_job

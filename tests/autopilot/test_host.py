@@ -9,7 +9,7 @@ import pytest
 
 from harness.autopilot.api import FlightMode
 from harness.autopilot.host import make_autopilots, run_autopilots
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.fdm.frame import encode_frame
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
 from harness.simclock.client import ChannelClient, ChannelClosed

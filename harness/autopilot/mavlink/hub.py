@@ -25,7 +25,7 @@ import threading
 from collections import deque
 from typing import TYPE_CHECKING
 
-from harness.simclock.clock import real_monotonic_ns
+from harness.core.clock import real_monotonic_ns
 
 if TYPE_CHECKING:
     from harness.autopilot.mavlink.server import MavlinkServer

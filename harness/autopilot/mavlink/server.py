@@ -42,8 +42,8 @@ from harness.autopilot.mavlink.personality import Firmware, make_dialect
 from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
 from harness.autopilot.mavlink.transport import Link, PortsConfig, UdpLink
-from harness.simclock.clock import real_monotonic_ns, real_time_ns
-from harness.simclock.endpoints import SETTLE_PREFIX
+from harness.core.clock import real_monotonic_ns, real_time_ns
+from harness.core.endpoints import SETTLE_PREFIX
 
 log = logging.getLogger(__name__)
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 import ipaddress
 from typing import Any
 
+from harness.core.endpoints import VehicleEndpoints, udp_listen_redirected
 from harness.simclock import simsocket
-from harness.simclock.endpoints import VehicleEndpoints, udp_listen_redirected
 from harness.simclock.protocol import BROADCAST
 from harness.simclock.runtime import SimRuntime
 from harness.simclock.simsocket import SimSocket

@@ -1,0 +1,80 @@
+"""What a run is asked to do: the validated plan a scenario file or the command line becomes.
+
+:class:`LaunchPlan` is the scenario layer's product and the launcher's (``harness.run.launcher``) input; it
+sits here, below both, so the scenario file model never imports the launcher.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from harness.autopilot.firmware import Firmware, firmware_of
+from harness.core.endpoints import GCS_PORT, PX4_API_BASE
+
+
+@dataclass(frozen=True)
+class MissionPlan:
+    script: Path
+    args: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class LaunchPlan:
+    """Everything a run needs, already validated (built from a scenario file or the command line)."""
+
+    vehicles: int
+    out: Path
+    missions: tuple[MissionPlan | None, ...] = ()
+    """Per vehicle (index i), or shorter: vehicles past the end fly no mission."""
+    seed: int = 0
+    physics_hz: float = 1000.0
+    tick_hz: float = 250.0
+    phase_every: int = 5
+    speed: float | None = None
+    """Real-time factor to pace at; None = as fast as possible."""
+    duration_s: float | None = None
+    network: str = "none"
+    network_params: dict[str, Any] = field(default_factory=dict)
+    stall_timeout_s: float = 30.0
+    origin: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
+    wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    turbulence: float = 0.0
+    gps: str = "px4-sitl"
+    """GPS error model, a key of ``harness.fdm.sensors.GPS_PROFILES``."""
+    sensor_noise: bool = True
+    """False: ideal sensors (rates and latency stay)."""
+    spawn_ned_m: tuple[tuple[float, float, float], ...] | None = None
+    params: tuple[dict[str, float], ...] = ()
+    api_port_base: int = PX4_API_BASE
+    """Vehicle ``i`` listens for its mission on UDP ``api_port_base + i`` (PX4 SITL's 14580 + i when free)."""
+    gcs_port: int = GCS_PORT
+    api_remote_base: int = 0
+    """Vehicle ``i`` also sends to UDP ``api_remote_base + i`` unasked (``harness sitl``: 14540, where hand-run
+    MAVSDK scripts listen); 0 = only to the peers that spoke to it (``harness run``: its own missions)."""
+    record_hz: float = 50.0
+    pause_at_s: float | None = None
+    """Stand the clock still once sim time reaches this, for ``pause_wall_s`` of wall time (stall tests)."""
+    pause_wall_s: float = 5.0
+    autopilots: str = "in-process"
+    """"in-process": autopilots and MAVLink servers live in the physics process (no socket hop per tick);
+    "process": one SITL-like autopilot process for all vehicles, connected to the channel."""
+    progress: Callable[[str], None] | None = None
+    firmware: tuple[Firmware, ...] = ()
+    """Per vehicle (or one entry for all; empty: PX4): the personality its MAVLink side presents."""
+    tcp_port_base: int | None = None
+    """ArduPilot vehicles' SERIAL0 (TCP) ports: ``tcp_port_base + tcp_port_step * i``; None: the run's own
+    block (vehicle i listens on TCP ``api_port_base + i``, the number of its UDP API port)."""
+    tcp_port_step: int = 1
+    gcs_extra_ports: tuple[int, ...] = ()
+    """More UDP outputs of ArduPilot vehicles (``harness sitl``: 14551, beside the GCS port 14550)."""
+
+    def firmware_of(self, vehicle: int) -> Firmware:
+        return firmware_of(self.firmware, vehicle)
+
+    view_port: int | None = None
+    """Serve the run's 3D view (``world.rrd``'s stream) live to Rerun viewers on this loopback gRPC port."""
+    on_view: Callable[[str], None] | None = None
+    """Called with the live view's address (``rerun+http://…``) once it serves, before the simulation starts."""
