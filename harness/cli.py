@@ -90,7 +90,7 @@ def _progress_printer() -> Callable[[str], None]:
 
 
 def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None) -> LaunchPlan:
-    from harness.scenario.plan import LaunchPlan, MissionPlan
+    from harness.scenario.plan import LaunchPlan, MissionPlan, NetworkKind
 
     if getattr(a, "scenario", None):
         from harness.scenario.config import load_scenario
@@ -127,7 +127,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         seed=a.seed or 0,
         speed=a.speed,
         duration_s=a.duration,
-        network=a.network or "none",
+        network=NetworkKind(a.network or "none"),
         progress=None if getattr(a, "no_progress", False) else _progress_printer(),
         pause_at_s=a.pause_at,
         pause_wall_s=a.pause_for,
@@ -303,6 +303,7 @@ def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
 def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     """Vehicles at real time for a ground station and hand-run scripts, until Ctrl-C."""
     from harness.run.launcher import Launcher
+    from harness.run.result import RunStatus
 
     a.mission, a.duration, a.plot = [], None, False
     _terminate_as_interrupt()
@@ -317,7 +318,7 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     finally:
         for viewer in natives:
             viewer.stop()
-    if result.status not in ("ok", "interrupted"):
+    if result.status not in (RunStatus.OK, RunStatus.INTERRUPTED):
         print(f"harness sitl: {result.status}: {result.message}", file=sys.stderr)
         return 1
     return 0

@@ -36,7 +36,8 @@ import pytest
 
 from harness.autopilot.mathutil import quat_to_euler
 from harness.record.world import read_topics
-from harness.sweep.results import RunStatus, read_results
+from harness.run.result import RunStatus
+from harness.sweep.results import read_results
 
 
 @dataclass

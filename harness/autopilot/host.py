@@ -90,7 +90,7 @@ def serve(client: ChannelClient, autopilots: dict[int, Autopilot], stop: threadi
                     frame = decode_frame(msg.frame)
                 except (msgspec.DecodeError, msgspec.ValidationError) as exc:
                     raise SimulationError(f"{client.name}: bad sensor frame for vehicle {msg.vehicle}: {exc}") from None
-                out.append(EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), ap.packed_status()))
+                out.append(EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), p.pack_status(*ap.tick_status())))
                 ticks += 1
             elif isinstance(msg, p.Bye):
                 if out:

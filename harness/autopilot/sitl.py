@@ -3,7 +3,7 @@
 Parameters a ground station sets are kept in ``<run dir>/params/vehicle-<i>.json`` and restored when the
 vehicle starts again in the same run directory.
 
-With ``LaunchPlan(autopilots="process")``, ``harness run`` starts one of these for all vehicles (one
+With ``LaunchPlan(autopilots=AutopilotPlacement.PROCESS)``, ``harness run`` starts one of these for all vehicles (one
 process for several vehicles is cheaper than one per vehicle, ``docs/autopilot.md``). Each vehicle gets a
 MAVLink server on API port ``api_port_base + i`` and the GCS port (one ``MavlinkHub`` thread serves them
 all) and writes ``vehicle-<i>.tlog`` in the run directory: every MAVLink frame it sent or received, each preceded by its 8-byte big-endian Unix time in

@@ -1,18 +1,31 @@
-"""Building the frozen ``VehicleState`` snapshot from the live autopilot (called under its lock)."""
+"""Building the frozen ``VehicleState`` snapshot from the live flight core and the commander's state (called
+under the autopilot's lock)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from harness.autopilot.api import FlightMode, GpsInfo, Health, LandedState, MissionProgress, VehicleState
+from harness.autopilot.api import (
+    Failsafe,
+    FlightMode,
+    GeoPoint,
+    GpsInfo,
+    Health,
+    LandedState,
+    MissionProgress,
+    VehicleState,
+)
+from harness.autopilot.flight import FlightCore
 from harness.autopilot.mathutil import quat_to_euler
-
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
+from harness.core.geo import Vec3
 
 
-def build_state(ap: Autopilot) -> VehicleState:
-    c = ap.core
+def build_state(
+    c: FlightCore,
+    vehicle: int,
+    home: GeoPoint | None,
+    home_ned: Vec3 | None,
+    failsafe: Failsafe,
+    preflight_ok: bool,
+) -> VehicleState:
     e = c.est
     nav = c.nav
     t = max(c.t_ns, 0)
@@ -34,14 +47,14 @@ def build_state(ap: Autopilot) -> VehicleState:
         gps_ok=e.global_position_ok(c.t_ns),
         gps_fix_ok=e.gps_fix_ok() and e.pos_valid,
         local_position_ok=e.pos_valid,
-        home_ok=ap.home is not None,
-        preflight_ok=ap.arming_check() == "",
+        home_ok=home is not None,
+        preflight_ok=preflight_ok,
     )
-    home_pd = ap.home_ned[2] if ap.home_ned is not None else 0.0
+    home_pd = home_ned[2] if home_ned is not None else 0.0
     mode = c.mode
     return VehicleState(
         t_ns=t,
-        vehicle=ap.vehicle,
+        vehicle=vehicle,
         armed=c.armed,
         mode=mode,
         landed_state=c.landed_state if c.armed else LandedState.ON_GROUND,
@@ -57,8 +70,8 @@ def build_state(ap: Autopilot) -> VehicleState:
         yaw_rad=yaw,
         rates_body_rad_s=e.rates,
         accel_body_m_s2=e.accel_body,
-        home=ap.home,
-        home_ned_m=ap.home_ned,
+        home=home,
+        home_ned_m=home_ned,
         battery=c.battery.state(),
         gps=gps,
         health=health,
@@ -73,5 +86,5 @@ def build_state(ap: Autopilot) -> VehicleState:
         motors=c.motors,
         throttle=c.collective,
         max_speed_m_s=nav.cruise_m_s,
-        failsafe=ap.failsafe,
+        failsafe=failsafe,
     )

@@ -7,9 +7,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from harness.core.geo import Vec3
 from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE, Packet
-
-Vec3 = tuple[float, float, float]
 
 
 class DropCause(enum.Enum):

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from harness.core.clock import NS_PER_S, real_monotonic_ns
+from harness.core.geo import WGS84_A_M, flat_offset_m
 from harness.record.links import LinkTracker, ratio_color
 
 if TYPE_CHECKING:
@@ -47,7 +48,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-R_EARTH_M = 6378137.0
 BODY_SCALE = 4.0
 """Vehicles are drawn this many times their real size (arm 0.25 m): visible when the view holds a swarm."""
 TRAIL_DT_S = 0.2
@@ -73,10 +73,7 @@ def vehicle_color(i: int) -> tuple[int, int, int]:
 def to_ned(lat_deg: float, lon_deg: float, origin: tuple[float, float, float]) -> tuple[float, float]:
     """North and east metres of a latitude / longitude from the world origin (flat earth, as the FDM's)."""
     lat0, lon0, _ = origin
-    return (
-        math.radians(lat_deg - lat0) * R_EARTH_M,
-        math.radians(lon_deg - lon0) * R_EARTH_M * math.cos(math.radians(lat0)),
-    )
+    return flat_offset_m(lat0, lon0, lat_deg, lon_deg, WGS84_A_M)
 
 
 class _Buffer:

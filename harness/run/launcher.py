@@ -22,68 +22,21 @@ import signal
 import subprocess
 import sys
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware
 from harness.core.clock import NS_PER_S, real_monotonic_ns, real_sleep, real_time_ns
 from harness.core.errors import ScenarioError, SimulationError
-from harness.fdm.link import NativeLink
 from harness.record.sink import WorldSink, open_world
+from harness.run.link import NativeLink
 from harness.run.ports import allocate
-from harness.scenario.plan import LaunchPlan
+from harness.run.result import RunResult, RunStatus, VehicleSummary, write_summary
+from harness.scenario.plan import AutopilotPlacement, LaunchPlan, NetworkKind
 from harness.simclock import protocol as p
 from harness.simclock.channel import Channel, ChannelConfig
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class VehicleSummary:
-    id: int
-    mission: str | None
-    mission_exit_code: int | None = None
-    max_altitude_m: float = 0.0
-    final_position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    landed: bool = True
-    armed: bool = False
-    crashed: bool = False
-
-
-@dataclass
-class RunResult:
-    status: str
-    sim_time_s: float
-    wall_time_s: float
-    vehicles: list[VehicleSummary]
-    faults: list[dict[str, Any]]
-    message: str = ""
-
-    @property
-    def real_time_factor(self) -> float:
-        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else 0.0
-
-    @property
-    def exit_code(self) -> int:
-        return 0 if self.status == "ok" else (130 if self.status == "interrupted" else 1)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "status": self.status,
-            "message": self.message,
-            "sim_time_s": self.sim_time_s,
-            "wall_time_s": self.wall_time_s,
-            "real_time_factor": self.real_time_factor,
-            "vehicles": [v.__dict__ | {"final_position_ned_m": list(v.final_position_ned_m)} for v in self.vehicles],
-            "faults": self.faults,
-        }
-
-
-def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(result.to_json() | extra, indent=2))
-    os.replace(tmp, out / "summary.json")
 
 
 def _python() -> str:
@@ -210,7 +163,7 @@ class Launcher:
         world = open_world(plan.out, self.epoch_ns, n, plan.origin, serve_port=plan.view_port)
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         faults: list[dict[str, Any]] = []
-        status, message = "ok", ""
+        status, message = RunStatus.OK, ""
         wall0 = real_monotonic_ns()
         t_ns = 0
         ports = allocate(n, plan.api_port_base, plan.gcs_port)
@@ -234,12 +187,14 @@ class Launcher:
                         )
                 if plan.on_view is not None and world.view is not None and world.view.grpc_url:
                     plan.on_view(world.view.grpc_url)
-                if plan.autopilots == "in-process":
+                if plan.autopilots == AutopilotPlacement.IN_PROCESS:
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
                 self._start_children(sup, channel.address)
                 expected = (
-                    (0 if local else 1) + (1 if plan.network != "none" else 0) + sum(1 for m in plan.missions if m)
+                    (0 if local else 1)
+                    + (1 if plan.network != NetworkKind.NONE else 0)
+                    + sum(1 for m in plan.missions if m)
                 )
                 if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=60.0):
                     raise SimulationError(
@@ -248,12 +203,12 @@ class Launcher:
                     )
                 status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
             except KeyboardInterrupt:
-                status, message = "interrupted", "stopped by Ctrl-C"
+                status, message = RunStatus.INTERRUPTED, "stopped by Ctrl-C"
             except SimulationError as exc:
-                status, message = "failed", str(exc)
+                status, message = RunStatus.FAILED, str(exc)
             except Exception as exc:  # a bug must still stop every process and write the summary
                 log.exception("the run failed")
-                status, message = "failed", f"internal error: {exc!r}"
+                status, message = RunStatus.FAILED, f"internal error: {exc!r}"
             finally:
                 channel.close("end of run")
                 world.close()
@@ -266,8 +221,8 @@ class Launcher:
             if s.mission is not None:
                 e = exits.get(s.id)
                 s.mission_exit_code = e.exit_code if e is not None else None
-                if status == "ok" and (e is None or e.exit_code != 0):
-                    status = "failed"
+                if status == RunStatus.OK and (e is None or e.exit_code != 0):
+                    status = RunStatus.FAILED
                     message = message or (
                         f"the mission of vehicle {s.id} was still running when the run ended at "
                         f"{phys.t_ns / NS_PER_S:.1f} s of sim time"
@@ -275,8 +230,8 @@ class Launcher:
                         else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
         faults = [f.__dict__ for f in channel.faults]
-        if any(s.crashed for s in summaries) and status == "ok":
-            status, message = "failed", "a vehicle crashed"
+        if any(s.crashed for s in summaries) and status == RunStatus.OK:
+            status, message = RunStatus.FAILED, "a vehicle crashed"
         result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
         write_summary(
             plan.out,
@@ -350,7 +305,7 @@ class Launcher:
         env = dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out))
         vehicles = ",".join(str(i) for i in range(plan.vehicles))
         overrides = {str(i): p for i, p in enumerate(plan.params) if p}
-        if plan.autopilots == "in-process":
+        if plan.autopilots == AutopilotPlacement.IN_PROCESS:
             vehicles = ""
         if vehicles:
             sup.start(
@@ -385,7 +340,7 @@ class Launcher:
                 ],
                 env=env,
             )
-        if plan.network != "none":
+        if plan.network != NetworkKind.NONE:
             sup.start(
                 "network",
                 [
@@ -433,7 +388,7 @@ class Launcher:
 
     def _loop(
         self, phys: Any, channel: Channel, world: WorldSink, summaries: list[VehicleSummary], sup: Any
-    ) -> tuple[str, str, int]:
+    ) -> tuple[RunStatus, str, int]:
         plan = self.plan
         n = plan.vehicles
         record_every = max(1, round(plan.tick_hz / plan.record_hz))
@@ -449,9 +404,9 @@ class Launcher:
             t_ns = phys.t_ns
             tick = phys.tick
             if end_ns is not None and t_ns >= end_ns:
-                return "ok", "", t_ns
+                return RunStatus.OK, "", t_ns
             if missions and len(channel.mission_exits) >= missions:
-                return "ok", "", t_ns
+                return RunStatus.OK, "", t_ns
             if plan.pause_at_s is not None and not paused_once and t_ns >= plan.pause_at_s * NS_PER_S:
                 paused_once = True
                 self.paused.set()

@@ -20,7 +20,8 @@ from typing import Any
 
 from harness.autopilot.firmware import Firmware
 from harness.core.errors import ScenarioError
-from harness.scenario.plan import LaunchPlan, MissionPlan
+from harness.fdm.sensors import GPS_PROFILES, GpsProfile, gps_profile_names
+from harness.scenario.plan import LaunchPlan, MissionPlan, NetworkKind
 
 _TOP = {
     "seed",
@@ -225,7 +226,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         phase_every=ctx.integer(rates.get("phase_every", 5), "rates.phase_every", minimum=1),
         speed=speed,
         duration_s=ctx.number(raw["duration_s"], "duration_s", positive=True) if "duration_s" in raw else None,
-        network=str(model),
+        network=NetworkKind(model),
         network_params=dict(ctx.table(net.get("params", {}), "network.params")),
         stall_timeout_s=ctx.number(channel.get("stall_timeout_s", 30.0), "channel.stall_timeout_s", positive=True),
         origin=(
@@ -251,12 +252,10 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
     return _replace(plan, fields)
 
 
-def _gps_profile(ctx: _Ctx, value: Any) -> str:
-    from harness.fdm.sensors import GPS_PROFILES
-
+def _gps_profile(ctx: _Ctx, value: Any) -> GpsProfile:
     if value not in GPS_PROFILES:
-        raise ctx.fail("sensors.gps", f"expected one of {sorted(GPS_PROFILES)}, got {value!r}")
-    return str(value)
+        raise ctx.fail("sensors.gps", f"expected one of {gps_profile_names()}, got {value!r}")
+    return GpsProfile(value)
 
 
 def _boolean(ctx: _Ctx, value: Any, field: str) -> bool:

@@ -6,6 +6,7 @@ sits here, below both, so the scenario file model never imports the launcher.
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,6 +14,25 @@ from typing import Any
 
 from harness.autopilot.firmware import Firmware, firmware_of
 from harness.core.endpoints import GCS_PORT, PX4_API_BASE
+from harness.core.errors import ScenarioError
+from harness.fdm.sensors import GpsProfile
+
+
+class NetworkKind(enum.StrEnum):
+    """The network simulator of a run (its value is the scenario file's ``network.model`` and ``--network``)."""
+
+    NONE = "none"
+    BUILTIN = "builtin"
+    NS3 = "ns3"
+
+
+class AutopilotPlacement(enum.StrEnum):
+    """Where a run's autopilots live."""
+
+    IN_PROCESS = "in-process"
+    """In the physics process with their MAVLink servers (no socket hop per tick)."""
+    PROCESS = "process"
+    """One SITL-like autopilot process for all vehicles, connected to the channel."""
 
 
 @dataclass(frozen=True)
@@ -36,14 +56,14 @@ class LaunchPlan:
     speed: float | None = None
     """Real-time factor to pace at; None = as fast as possible."""
     duration_s: float | None = None
-    network: str = "none"
+    network: NetworkKind = NetworkKind.NONE
     network_params: dict[str, Any] = field(default_factory=dict)
     stall_timeout_s: float = 30.0
     origin: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
     wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     turbulence: float = 0.0
-    gps: str = "px4-sitl"
-    """GPS error model, a key of ``harness.fdm.sensors.GPS_PROFILES``."""
+    gps: GpsProfile = GpsProfile.PX4_SITL
+    """GPS error model."""
     sensor_noise: bool = True
     """False: ideal sensors (rates and latency stay)."""
     spawn_ned_m: tuple[tuple[float, float, float], ...] | None = None
@@ -58,9 +78,7 @@ class LaunchPlan:
     pause_at_s: float | None = None
     """Stand the clock still once sim time reaches this, for ``pause_wall_s`` of wall time (stall tests)."""
     pause_wall_s: float = 5.0
-    autopilots: str = "in-process"
-    """"in-process": autopilots and MAVLink servers live in the physics process (no socket hop per tick);
-    "process": one SITL-like autopilot process for all vehicles, connected to the channel."""
+    autopilots: AutopilotPlacement = AutopilotPlacement.IN_PROCESS
     progress: Callable[[str], None] | None = None
     firmware: tuple[Firmware, ...] = ()
     """Per vehicle (or one entry for all; empty: PX4): the personality its MAVLink side presents."""
@@ -70,6 +88,16 @@ class LaunchPlan:
     tcp_port_step: int = 1
     gcs_extra_ports: tuple[int, ...] = ()
     """More UDP outputs of ArduPilot vehicles (``harness sitl``: 14551, beside the GCS port 14550)."""
+
+    def __post_init__(self) -> None:
+        # the command line and ``--set`` give the kinds as text: one clear error for a bad one
+        for name, kind in (("network", NetworkKind), ("autopilots", AutopilotPlacement), ("gps", GpsProfile)):
+            value = getattr(self, name)
+            try:
+                object.__setattr__(self, name, kind(value))
+            except ValueError:
+                choices = ", ".join(repr(k.value) for k in kind)
+                raise ScenarioError(f"{name}: expected one of {choices}, got {value!r}") from None
 
     def firmware_of(self, vehicle: int) -> Firmware:
         return firmware_of(self.firmware, vehicle)

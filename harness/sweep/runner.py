@@ -24,7 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from harness.core.errors import ScenarioError, SimulationError
-from harness.sweep.results import RunStatus, write_results
+from harness.run.result import RunStatus
+from harness.sweep.results import write_results
 from harness.sweep.spec import SweepSpec
 from harness.sweep.task import RunJob, finished_row, run_job
 

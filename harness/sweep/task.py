@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harness.sweep.results import FINISHED, RunStatus, row_from_run_dir
+from harness.run.result import RunStatus
+from harness.sweep.results import FINISHED, row_from_run_dir
 
 POLL_S = 0.25
 MARKER = "sweep-run.json"

@@ -13,8 +13,8 @@ import numpy as np
 
 from harness.autopilot.api import FlightMode
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
-from harness.autopilot.mathutil import GeoRef
 from harness.core.clock import ManualClock
+from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
 from tests.autopilot.quadsim import QuadSim
 

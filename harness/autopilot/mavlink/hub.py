@@ -23,45 +23,58 @@ import os
 import selectors
 import threading
 from collections import deque
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import Protocol
 
+from harness.autopilot.mavlink.transport import Link
 from harness.core.clock import real_monotonic_ns
-
-if TYPE_CHECKING:
-    from harness.autopilot.mavlink.server import MavlinkServer
 
 log = logging.getLogger(__name__)
 
 _OP_TIMEOUT_S = 5.0
 
 
+class HubMember(Protocol):
+    """What the hub uses of a server it serves (``harness.autopilot.mavlink.server.HubMember``)."""
+
+    vehicle: int
+
+    @property
+    def links(self) -> Sequence[Link]: ...
+    @property
+    def next_wake_ns(self) -> int: ...
+    def attached(self, hub: MavlinkHub) -> None: ...
+    def receive(self, link: int, now: int) -> None: ...
+    def service(self, now: int) -> None: ...
+
+
 class MavlinkHub:
-    """Serves any number of :class:`MavlinkServer` on one thread. ``add`` them, then ``start()``."""
+    """Serves any number of MAVLink servers (:class:`HubMember`) on one thread. ``add`` them, then ``start()``."""
 
     def __init__(self, name: str = "mavlink") -> None:
         self.name = name
-        self._servers: dict[MavlinkServer, None] = {}
+        self._servers: dict[HubMember, None] = {}
         """In the order added (a dict: membership is tested for every server served)."""
         self._sel = selectors.DefaultSelector()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
-        self._ops: deque[tuple[str, MavlinkServer, threading.Event]] = deque()
+        self._ops: deque[tuple[str, HubMember, threading.Event]] = deque()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
 
     # ------------------------------------------------------------------ membership
-    def add(self, server: MavlinkServer) -> None:
+    def add(self, server: HubMember) -> None:
         """Serve ``server`` (from any thread; applied by the hub thread when it runs)."""
         self._apply_or_queue("add", server)
 
-    def remove(self, server: MavlinkServer) -> None:
+    def remove(self, server: HubMember) -> None:
         """Stop serving ``server``; on return the hub no longer touches its sockets."""
         self._apply_or_queue("remove", server)
 
-    def _apply_or_queue(self, op: str, server: MavlinkServer) -> None:
+    def _apply_or_queue(self, op: str, server: HubMember) -> None:
         thread = self._thread
         if thread is None or not thread.is_alive() or thread is threading.current_thread():
             self._apply(op, server)
@@ -72,7 +85,7 @@ class MavlinkHub:
         if not done.wait(_OP_TIMEOUT_S):
             log.warning("%s: the hub thread did not %s vehicle %d in time", self.name, op, server.vehicle)
 
-    def _apply(self, op: str, server: MavlinkServer) -> None:
+    def _apply(self, op: str, server: HubMember) -> None:
         if op == "add":
             if server in self._servers:
                 return
@@ -135,7 +148,7 @@ class MavlinkHub:
         if self._stop.is_set():
             return
         now = real_monotonic_ns()
-        todo: dict[MavlinkServer, None] = {}
+        todo: dict[HubMember, None] = {}
         for key, _mask in events:
             if key.data is None:
                 with contextlib.suppress(OSError):

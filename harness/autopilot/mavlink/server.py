@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import AutopilotApi, FlightMode, GeoPoint, Result, Severity, VehicleState
+from harness.autopilot.firmware import Firmware
 from harness.autopilot.mavlink import ftp
 from harness.autopilot.mavlink.codec import Codec, FrameStatus, SigningConfig
 from harness.autopilot.mavlink.commands import CommandIn, CommandService
@@ -38,7 +39,7 @@ from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, stat
 from harness.autopilot.mavlink.mission import MissionService, ProgressTracker
 from harness.autopilot.mavlink.offboard import handle_setpoint
 from harness.autopilot.mavlink.parameters import ParamService
-from harness.autopilot.mavlink.personality import Firmware, make_dialect
+from harness.autopilot.mavlink.personality import make_dialect
 from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
 from harness.autopilot.mavlink.transport import Link, PortsConfig, UdpLink
