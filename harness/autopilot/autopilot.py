@@ -37,7 +37,7 @@ from harness.autopilot.params import Params
 from harness.autopilot.snapshot import build_state
 from harness.autopilot.supervisor import Supervisor, arming_check
 from harness.autopilot.validate import check_mission, finite
-from harness.core.clock import Clock, WallClock
+from harness.core.clock import WALL, Clock
 from harness.core.errors import ScenarioError
 from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
@@ -77,7 +77,7 @@ class Autopilot:
         self.config = cfg
         self.vehicle = cfg.vehicle
         self.params = params if params is not None else Params(overrides=cfg.params)
-        self.wall = wall_clock if wall_clock is not None else WallClock()
+        self.wall = wall_clock if wall_clock is not None else WALL
         origin = GeoRef(*cfg.origin) if cfg.origin is not None else None
         self.core = FlightCore(self.params, cfg.use_ground_truth, origin)
         self._lock = threading.Lock()

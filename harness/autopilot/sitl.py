@@ -31,7 +31,7 @@ from harness.autopilot.mavlink.param_store import persist_params
 from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
-from harness.core.clock import real_time_ns
+from harness.core.clock import WALL, Clock
 from harness.core.errors import HarnessError, ScenarioError
 
 log = logging.getLogger(__name__)
@@ -42,8 +42,9 @@ _STAMP = struct.Struct(">Q")
 class TlogWriter:
     """Appends MAVLink frames to a ``.tlog``; flushed every ``flush_every`` frames and on close."""
 
-    def __init__(self, path: Path, flush_every: int = 50) -> None:
+    def __init__(self, path: Path, flush_every: int = 50, clock: Clock = WALL) -> None:
         self._f: BinaryIO = path.open("ab")
+        self._clock = clock
         self._n = 0
         self._flush_every = flush_every
         self._lock = threading.Lock()
@@ -53,7 +54,7 @@ class TlogWriter:
         with self._lock:
             if self.closed:
                 return
-            self._f.write(_STAMP.pack(real_time_ns() // 1000) + frame)
+            self._f.write(_STAMP.pack(self._clock.unix_ns() // 1000) + frame)
             self._n += 1
             if self._n % self._flush_every == 0:
                 self._f.flush()
@@ -85,13 +86,16 @@ def attach_mavlink(
     firmware: Firmware = Firmware.PX4,
 ) -> _Attached:
     """The MAVLink server (and tlog, stored parameters) of ``ap``, served by ``hub`` (or a thread of its own),
-    presenting ``firmware``'s personality."""
+    presenting ``firmware``'s personality, on the hub's wall clock."""
+    clock = hub.clock if hub is not None else WALL
     tlog = None
     if run_dir is not None:
-        tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog")
+        tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog", clock=clock)
         for refused in persist_params(ap.params, run_dir, ap.vehicle):
             log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
-    server = MavlinkServer(ap, ap.vehicle, ports, signing, tap=tlog.write if tlog else None, firmware=firmware)
+    server = MavlinkServer(
+        ap, ap.vehicle, ports, signing, clock=clock, tap=tlog.write if tlog else None, firmware=firmware
+    )
     if hub is None:
         server.start()
     else:

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware
-from harness.core.clock import NS_PER_S, real_monotonic_ns, real_sleep, real_time_ns
+from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError
 from harness.record.sink import WorldSink, open_world
 from harness.run.link import NativeLink
@@ -62,9 +62,10 @@ class Children:
     ``stop()`` each group gets SIGTERM, then SIGKILL after ``grace_s``. Nothing outlives the run.
     """
 
-    def __init__(self, run_dir: Path, grace_s: float = 2.0) -> None:
+    def __init__(self, run_dir: Path, grace_s: float = 2.0, clock: Clock = WALL) -> None:
         self.run_dir = run_dir
         self.grace_s = grace_s
+        self.clock = clock
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self._reported: set[str] = set()
 
@@ -99,9 +100,9 @@ class Children:
         for proc in live:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.killpg(proc.pid, signal.SIGTERM)
-        deadline = real_monotonic_ns() + int(self.grace_s * NS_PER_S)
+        deadline = self.clock.now_ns() + int(self.grace_s * NS_PER_S)
         for proc in live:
-            left = max(0.0, (deadline - real_monotonic_ns()) / NS_PER_S)
+            left = max(0.0, (deadline - self.clock.now_ns()) / NS_PER_S)
             try:
                 proc.wait(left)
             except subprocess.TimeoutExpired:
@@ -113,14 +114,16 @@ class Children:
 
 
 class Launcher:
-    """Runs one plan. ``run()`` returns the result; the summary is written in any case."""
+    """Runs one plan. ``run()`` returns the result; the summary is written in any case. ``clock``: the wall
+    clock of pacing, progress, the MAVLink side and the run's date (the sim clock is the physics)."""
 
-    def __init__(self, plan: LaunchPlan) -> None:
+    def __init__(self, plan: LaunchPlan, clock: Clock = WALL) -> None:
         if plan.vehicles < 1:
             raise ScenarioError(f"a run needs at least one vehicle, got {plan.vehicles}")
         self.plan = plan
+        self.clock = clock
         plan.out.mkdir(parents=True, exist_ok=True)
-        self.epoch_ns = real_time_ns() // NS_PER_S * NS_PER_S
+        self.epoch_ns = clock.unix_ns() // NS_PER_S * NS_PER_S
         self.paused = threading.Event()
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
@@ -164,13 +167,16 @@ class Launcher:
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         faults: list[dict[str, Any]] = []
         status, message = RunStatus.OK, ""
-        wall0 = real_monotonic_ns()
+        wall0 = self.clock.now_ns()
         t_ns = 0
         ports = allocate(n, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         local: list[Any] = []
-        with ports, Children(plan.out) as sup:  # the block stays this run's until every process has stopped
+        with (
+            ports,
+            Children(plan.out, clock=self.clock) as sup,
+        ):  # the block stays this run's until every process has stopped
             try:
                 if plan.progress is not None:
                     plan.progress(
@@ -214,7 +220,7 @@ class Launcher:
                 world.close()
                 for handle in local:
                     handle.close()
-        wall_s = (real_monotonic_ns() - wall0) / NS_PER_S
+        wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns
         exits = {e.vehicle: e for e in channel.mission_exits}
         for s in summaries:
@@ -271,7 +277,8 @@ class Launcher:
                         **core_param_defaults(plan.firmware_of(i)),
                         **(plan.params[i] if i < len(plan.params) else {}),
                     },
-                )
+                ),
+                wall_clock=self.clock,
             )
             for i in range(plan.vehicles)
         }
@@ -279,7 +286,7 @@ class Launcher:
         ports = PortsConfig(
             api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
         )
-        hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
+        hub = MavlinkHub(name="mavlink", clock=self.clock).start()  # one wall-clock thread serves every vehicle
         handles: list[Any] = []
         try:
             for i, ap in aps.items():
@@ -397,7 +404,7 @@ class Launcher:
         frames = phys.frames()
         link = NativeLink(channel, self._aps)
         paused_once = False
-        wall0 = real_monotonic_ns()
+        wall0 = self.clock.now_ns()
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
         while True:
@@ -414,24 +421,23 @@ class Launcher:
                 self._pause_timer.daemon = True
                 self._pause_timer.start()
             if self.paused.is_set():
-                stopped = real_monotonic_ns()
+                stopped = self.clock.now_ns()
                 world.event(t_ns, "paused", {})
                 while self.paused.is_set():
-                    real_sleep(0.02)
-                stalled = real_monotonic_ns() - stopped
+                    self.clock.sleep_ns(20_000_000)
+                stalled = self.clock.now_ns() - stopped
                 wall0 += stalled  # pacing resumes from here, it does not rush to catch up
                 world.event(t_ns, "resumed", {"paused_wall_s": stalled / NS_PER_S})
             if plan.speed is not None:
-                lag = wall0 + int(t_ns / plan.speed) - real_monotonic_ns()
-                if lag > 0:
-                    real_sleep(lag / NS_PER_S)
-            tick_start = real_monotonic_ns()
+                lag = wall0 + int(t_ns / plan.speed) - self.clock.now_ns()
+                self.clock.sleep_ns(lag)
+            tick_start = self.clock.now_ns()
             etas = link.exchange(t_ns, tick, frames)
             for e in etas:
                 motors[e.vehicle] = e.motors
                 summaries[e.vehicle].armed = p.unpack_status(e.status)[0]
             if tick % record_every == 0:
-                now = real_monotonic_ns()
+                now = self.clock.now_ns()
                 for f in frames:
                     tr = f.truth
                     world.vehicle(
@@ -463,8 +469,8 @@ class Launcher:
                 for name, code in sup.poll_exits():
                     if name in ("autopilot", "network"):
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
-            if plan.progress is not None and real_monotonic_ns() - last_progress > 500_000_000:
-                last_progress = real_monotonic_ns()
+            if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
+                last_progress = self.clock.now_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
 
     @staticmethod

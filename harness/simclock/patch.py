@@ -20,10 +20,9 @@ from typing import Any
 
 from harness.core.clock import NS_PER_S, real_monotonic_ns
 from harness.simclock import iowait
-from harness.simclock.runtime import SimRuntime, Waiter, set_current
+from harness.simclock.runtime import INSTALLED, SimRuntime, Waiter
 
 _originals: dict[tuple[object, str], Any] = {}
-_rt: SimRuntime | None = None
 
 
 def _set(owner: object, name: str, value: object) -> None:
@@ -34,18 +33,16 @@ def _set(owner: object, name: str, value: object) -> None:
 
 
 def installed() -> bool:
-    return _rt is not None
+    return INSTALLED.runtime is not None
 
 
 def install(rt: SimRuntime) -> None:
     """Patch the process so that time and waits follow ``rt``."""
-    global _rt
-    if _rt is rt:
+    if INSTALLED.runtime is rt:
         return
-    if _rt is not None:
+    if INSTALLED.runtime is not None:
         uninstall()
-    _rt = rt
-    set_current(rt)
+    INSTALLED.runtime = rt
 
     def sim_time() -> float:
         return rt.unix_ns() / NS_PER_S
@@ -102,16 +99,14 @@ def install(rt: SimRuntime) -> None:
 
 def uninstall() -> None:
     """Put every original back."""
-    global _rt
-    if _rt is None:
+    if INSTALLED.runtime is None:
         return
     policy = _originals.pop((asyncio, "_policy"), None)
     for (owner, name), value in reversed(list(_originals.items())):
         setattr(owner, name, value)
     _originals.clear()
     asyncio.set_event_loop_policy(policy)
-    _rt = None
-    set_current(None)
+    INSTALLED.runtime = None
 
 
 def patched_names() -> Mapping[str, str]:

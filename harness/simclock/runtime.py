@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from types import FrameType
 
 from harness.core.clock import NS_PER_S, real_monotonic_ns
+from harness.core.endpoints import VehicleEndpoints
 from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE
 
 log = logging.getLogger(__name__)
@@ -562,14 +563,28 @@ def _thread_code_is_script(t: threading.Thread) -> bool:
     return module_name.split(".", 1)[0] not in _SERVICE_MODULES
 
 
-_current: SimRuntime | None = None
+class Installed:
+    """The mission runtime's one piece of process-wide state: what is installed in this process.
+
+    Patching replaces process-wide functions (``time.sleep``, ``socket.socket``), so what they run on is
+    process-wide too; it lives here and nowhere else (:data:`INSTALLED`): ``patch.install`` sets ``runtime``,
+    ``simsocket.install`` sets ``sockets`` and ``endpoints``.
+    """
+
+    __slots__ = ("endpoints", "runtime", "sockets")
+
+    def __init__(self) -> None:
+        self.runtime: SimRuntime | None = None
+        """The runtime time and waits follow (``patch.install``)."""
+        self.sockets: SimRuntime | None = None
+        """The runtime the mission's sockets wait on and send radio packets through (``simsocket.install``)."""
+        self.endpoints: VehicleEndpoints | None = None
+        """The vehicle a script's MAVLink addresses are mapped to (``simsocket.install``)."""
+
+
+INSTALLED = Installed()
 
 
 def current() -> SimRuntime | None:
     """The sim runtime of this process, if it runs under ``harness mission``."""
-    return _current
-
-
-def set_current(rt: SimRuntime | None) -> None:
-    global _current
-    _current = rt
+    return INSTALLED.runtime

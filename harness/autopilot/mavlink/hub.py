@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from typing import Protocol
 
 from harness.autopilot.mavlink.transport import Link
-from harness.core.clock import real_monotonic_ns
+from harness.core.clock import WALL, Clock
 
 log = logging.getLogger(__name__)
 
@@ -51,8 +51,10 @@ class HubMember(Protocol):
 class MavlinkHub:
     """Serves any number of MAVLink servers (:class:`HubMember`) on one thread. ``add`` them, then ``start()``."""
 
-    def __init__(self, name: str = "mavlink") -> None:
+    def __init__(self, name: str = "mavlink", clock: Clock = WALL) -> None:
         self.name = name
+        self.clock = clock
+        """The wall clock of its servers' deadlines (give each server the same)."""
         self._servers: dict[HubMember, None] = {}
         """In the order added (a dict: membership is tested for every server served)."""
         self._sel = selectors.DefaultSelector()
@@ -141,13 +143,13 @@ class MavlinkHub:
                 self._stop.wait(0.01)
 
     def _once(self) -> None:
-        now = real_monotonic_ns()
+        now = self.clock.now_ns()
         servers = self._servers
         deadline = min((s.next_wake_ns for s in servers), default=now + 1_000_000_000)
         events = self._sel.select(max(0.0, (deadline - now) / 1e9))
         if self._stop.is_set():
             return
-        now = real_monotonic_ns()
+        now = self.clock.now_ns()
         todo: dict[HubMember, None] = {}
         for key, _mask in events:
             if key.data is None:
