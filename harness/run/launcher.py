@@ -28,6 +28,7 @@ from typing import Any
 from harness.autopilot.firmware import Firmware
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError
+from harness.record.sample import VehicleSample
 from harness.record.sink import WorldSink, open_world
 from harness.run.link import NativeLink
 from harness.run.ports import allocate
@@ -441,17 +442,19 @@ class Launcher:
                 for f in frames:
                     tr = f.truth
                     world.vehicle(
-                        t_ns,
-                        f.vehicle,
-                        tr.pos_ned_m,
-                        tr.quat,
-                        tr.vel_ned_m_s,
-                        tr.lat_deg,
-                        tr.lon_deg,
-                        tr.alt_amsl_m,
-                        motors[f.vehicle],
-                        tr.on_ground,
-                        tr.crashed,
+                        VehicleSample(
+                            t_ns,
+                            f.vehicle,
+                            tr.pos_ned_m,
+                            tr.quat,
+                            tr.vel_ned_m_s,
+                            tr.lat_deg,
+                            tr.lon_deg,
+                            tr.alt_amsl_m,
+                            motors[f.vehicle],
+                            tr.on_ground,
+                            tr.crashed,
+                        )
                     )
                 world.tick(t_ns, tick, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3)
             frames = phys.step(motors)

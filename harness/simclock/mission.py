@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.core.clock import real_sleep
+from harness.core.clock import NS_PER_S
 from harness.core.endpoints import VehicleEndpoints
 from harness.core.errors import ScenarioError
 from harness.simclock import mavsdk_compat, patch
@@ -89,7 +89,7 @@ class _ClockThread(threading.Thread):
         sys.stderr.write(f"harness mission: {reason}; stopping the script\n")
         sys.stderr.flush()
         # Give the script a moment to finish on its own (its waits were all released), then end it.
-        real_sleep(2.0)
+        self.rt.wall.sleep_ns(2 * NS_PER_S)
         _exit(EXIT_RUN_ENDED)
 
 

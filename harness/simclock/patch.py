@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from itertools import islice
 from typing import Any
 
-from harness.core.clock import NS_PER_S, real_monotonic_ns
+from harness.core.clock import NS_PER_S
 from harness.simclock import iowait
 from harness.simclock.runtime import INSTALLED, SimRuntime, Waiter
 
@@ -74,7 +74,7 @@ def install(rt: SimRuntime) -> None:
 
     def wait_clock() -> float:
         # the clock of timed waits: sim time where waits are sim-time waits, real time elsewhere
-        return rt.now_ns() / NS_PER_S if rt._tracked() else real_monotonic_ns() / NS_PER_S
+        return (rt.now_ns() if rt._tracked() else rt.wall.now_ns()) / NS_PER_S
 
     # modules that captured a time function at import, for their timed waits
     _set(threading, "_time", wait_clock)

@@ -1,0 +1,23 @@
+"""What every world recorder records of a vehicle at a recorded tick (``WorldSink.vehicle``)."""
+
+from __future__ import annotations
+
+import msgspec
+
+from harness.core.geo import Quat, Vec3
+
+
+class VehicleSample(msgspec.Struct, frozen=True):
+    """One vehicle's ground truth and motor commands at sim time ``t_ns``."""
+
+    t_ns: int
+    vehicle: int
+    pos_ned_m: Vec3
+    quat_wxyz: Quat
+    vel_ned_m_s: Vec3
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    motors: tuple[float, ...]
+    on_ground: bool
+    crashed: bool
