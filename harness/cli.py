@@ -11,7 +11,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from harness.core.errors import HarnessError, ScenarioError
 
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 
 def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
-    from harness.simclock.mission import MissionSpec, main_mission
+    from harness.simclock.mission import MissionHooks, MissionSpec, run_mission
 
     channel = a.channel or os.environ.get("HARNESS_CHANNEL")
     if not channel:
@@ -33,8 +33,32 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
     if not script.is_file():
         raise ScenarioError(f"harness mission: script {script} does not exist")
     name = a.name or f"mission:{script.name}:{vehicle}"
-    main_mission(MissionSpec(script, tuple(script_args), channel, vehicle, name))
-    return 0  # not reached
+    hooks = MissionHooks(
+        report=lambda line: print(f"harness mission: {line}", file=sys.stderr), end_process=_end_mission
+    )
+    try:
+        code = run_mission(MissionSpec(script, tuple(script_args), channel, vehicle, name), hooks)
+    except ScenarioError as exc:
+        print(f"harness mission: {exc}", file=sys.stderr)
+        code = 2
+    except Exception as exc:
+        print(f"harness mission: {exc}", file=sys.stderr)
+        code = 1
+    _end_mission(code)
+
+
+def _end_mission(code: int) -> NoReturn:
+    """End a mission process at once: a library may have left a non-daemon thread behind, and whatever the
+    script started (mavsdk_server) must not outlive it."""
+    from harness.simclock.mission import kill_descendants
+
+    kill_descendants()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:
+            pass
+    os._exit(code)
 
 
 def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
