@@ -13,7 +13,6 @@ import argparse
 import json
 import logging
 import os
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import IO
@@ -104,14 +103,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         model = make_model(a.model, a.seed, params)
         client = ChannelClient.connect(a.address, p.PeerKind.TYPE1, a.name)
     except (HarnessError, json.JSONDecodeError) as exc:
-        print(f"network: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 2
     run_dir = os.environ.get("HARNESS_RUN_DIR")
     events = (Path(run_dir) / "network-events.jsonl").open("a") if run_dir else None
     try:
         serve(client, model, events)
     except HarnessError as exc:
-        print(f"network: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 1
     finally:
         client.close()
@@ -121,4 +120,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())
