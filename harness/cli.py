@@ -114,7 +114,8 @@ def _progress_printer() -> Callable[[str], None]:
 
 
 def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None) -> LaunchPlan:
-    from harness.scenario.plan import LaunchPlan, MissionPlan, NetworkKind
+    from harness.net.model import NetworkKind
+    from harness.scenario.plan import LaunchPlan, MissionPlan
 
     if getattr(a, "scenario", None):
         from harness.scenario.config import load_scenario

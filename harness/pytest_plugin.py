@@ -116,7 +116,7 @@ class RunRecord:
 
     @property
     def ok(self) -> bool:
-        return self.returncode == 0 and self.summary.get("status") == "ok"
+        return self.returncode == 0 and self.summary.get("status") == RunStatus.OK
 
     @property
     def message(self) -> str:

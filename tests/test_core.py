@@ -15,8 +15,9 @@ from harness.autopilot.sitl import TlogWriter
 from harness.core.clock import WALL, Clock, ManualClock
 from harness.core.errors import ScenarioError
 from harness.core.geo import EARTH_RADIUS_M, WGS84_A_M, GeoRef, flat_offset_m, flat_point
+from harness.net.model import NetworkKind
 from harness.run.result import RunResult, RunStatus, VehicleSummary
-from harness.scenario.plan import AutopilotPlacement, LaunchPlan, NetworkKind
+from harness.scenario.plan import AutopilotPlacement, LaunchPlan
 
 
 def test_manual_clock_moves_only_forward_and_sleeps_by_jumping() -> None:

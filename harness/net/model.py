@@ -11,6 +11,14 @@ from harness.core.geo import Vec3
 from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE, Packet
 
 
+class NetworkKind(enum.StrEnum):
+    """The network simulator of a run (its value is the scenario file's ``network.model`` and ``--network``)."""
+
+    NONE = "none"
+    BUILTIN = "builtin"
+    NS3 = "ns3"
+
+
 class DropCause(enum.Enum):
     RANGE = "range"
     """Beyond the model's range, or the receiver has no position (not in the world)."""

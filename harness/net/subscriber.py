@@ -18,19 +18,19 @@ from pathlib import Path
 from typing import IO
 
 from harness.core.errors import HarnessError, ScenarioError
-from harness.net.model import NetworkModel, StepResult, lookahead_ns
+from harness.net.model import NetworkKind, NetworkModel, StepResult, lookahead_ns
 from harness.simclock import protocol as p
 from harness.simclock.client import ChannelClient, ChannelClosed
 
 log = logging.getLogger(__name__)
 
 
-def make_model(name: str, seed: int, params: dict[str, object]) -> NetworkModel:
-    if name == "builtin":
+def make_model(name: NetworkKind | str, seed: int, params: dict[str, object]) -> NetworkModel:
+    if name == NetworkKind.BUILTIN:
         from harness.net.builtin import BuiltinRadio, RadioConfig
 
         return BuiltinRadio(RadioConfig.from_params(params), seed)
-    if name == "ns3":
+    if name == NetworkKind.NS3:
         from harness.net.ns3model import Ns3Config, Ns3Radio
 
         return Ns3Radio(Ns3Config.from_params(params), seed)

@@ -42,7 +42,7 @@ import numpy as np
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.geo import WGS84_A_M, flat_offset_m
 from harness.record.links import LinkTracker, ratio_color
-from harness.record.sample import VehicleSample
+from harness.record.sample import VehicleSample, WorldEvent
 
 if TYPE_CHECKING:
     from harness.autopilot.api import AutopilotApi, MissionItem
@@ -201,7 +201,7 @@ class RrdRecorder:
         rr = self._rr
         self._rec.set_time("sim_time", duration=t_ns / NS_PER_S)
         text = kind + (" " + " ".join(f"{k}={v}" for k, v in detail.items()) if detail else "")
-        level = rr.TextLogLevel.ERROR if kind == "crash" else rr.TextLogLevel.INFO
+        level = rr.TextLogLevel.ERROR if kind == WorldEvent.CRASH else rr.TextLogLevel.INFO
         self._rec.log("events", rr.TextLog(text, level=level))
 
     def flush(self) -> None:

@@ -1,6 +1,9 @@
-"""What every world recorder records of a vehicle at a recorded tick (``WorldSink.vehicle``)."""
+"""What every world recorder records: a vehicle at a recorded tick (``WorldSink.vehicle``), and the kinds of
+events (``WorldSink.event``)."""
 
 from __future__ import annotations
+
+import enum
 
 import msgspec
 
@@ -21,3 +24,11 @@ class VehicleSample(msgspec.Struct, frozen=True):
     motors: tuple[float, ...]
     on_ground: bool
     crashed: bool
+
+
+class WorldEvent(enum.StrEnum):
+    """A run event in ``world.mcap``'s ``/events`` and the view's log (the value is what the files hold)."""
+
+    PAUSED = "paused"
+    RESUMED = "resumed"
+    CRASH = "crash"

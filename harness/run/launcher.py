@@ -28,7 +28,7 @@ from typing import Any
 from harness.autopilot.firmware import Firmware
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError
-from harness.record.sample import VehicleSample
+from harness.record.sample import VehicleSample, WorldEvent
 from harness.record.sink import WorldSink, open_world
 from harness.run.link import NativeLink
 from harness.run.ports import allocate
@@ -423,12 +423,12 @@ class Launcher:
                 self._pause_timer.start()
             if self.paused.is_set():
                 stopped = self.clock.now_ns()
-                world.event(t_ns, "paused", {})
+                world.event(t_ns, WorldEvent.PAUSED, {})
                 while self.paused.is_set():
                     self.clock.sleep_ns(20_000_000)
                 stalled = self.clock.now_ns() - stopped
                 wall0 += stalled  # pacing resumes from here, it does not rush to catch up
-                world.event(t_ns, "resumed", {"paused_wall_s": stalled / NS_PER_S})
+                world.event(t_ns, WorldEvent.RESUMED, {"paused_wall_s": stalled / NS_PER_S})
             if plan.speed is not None:
                 lag = wall0 + int(t_ns / plan.speed) - self.clock.now_ns()
                 self.clock.sleep_ns(lag)
@@ -467,7 +467,7 @@ class Launcher:
                 s.landed = f.truth.on_ground
                 if f.truth.crashed and not s.crashed:
                     s.crashed = True
-                    world.event(t_ns, "crash", {"vehicle": f.vehicle})
+                    world.event(t_ns, WorldEvent.CRASH, {"vehicle": f.vehicle})
             if tick % 50 == 0:  # every 0.2 s of sim time: a child's death is noticed, waitpid stays cheap
                 for name, code in sup.poll_exits():
                     if name in ("autopilot", "network"):

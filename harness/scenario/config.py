@@ -21,7 +21,8 @@ from typing import Any
 from harness.autopilot.firmware import Firmware
 from harness.core.errors import ScenarioError
 from harness.fdm.sensors import GPS_PROFILES, GpsProfile, gps_profile_names
-from harness.scenario.plan import LaunchPlan, MissionPlan, NetworkKind
+from harness.net.model import NetworkKind
+from harness.scenario.plan import LaunchPlan, MissionPlan
 
 _TOP = {
     "seed",
@@ -211,7 +212,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
             "rates.physics_hz", f"must be a whole multiple of rates.tick_hz ({tick_hz:g}), got {physics_hz:g}"
         )
     model = net.get("model", "none")
-    if model not in ("none", "builtin", "ns3"):
+    if model not in set(NetworkKind):
         raise ctx.fail("network.model", f"must be 'builtin', 'ns3' or 'none', got {model!r}")
 
     missions, spawns, params = _vehicles(ctx, raw.get("vehicles"))

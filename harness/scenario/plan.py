@@ -16,14 +16,7 @@ from harness.autopilot.firmware import Firmware, firmware_of
 from harness.core.endpoints import GCS_PORT, PX4_API_BASE
 from harness.core.errors import ScenarioError
 from harness.fdm.sensors import GpsProfile
-
-
-class NetworkKind(enum.StrEnum):
-    """The network simulator of a run (its value is the scenario file's ``network.model`` and ``--network``)."""
-
-    NONE = "none"
-    BUILTIN = "builtin"
-    NS3 = "ns3"
+from harness.net.model import NetworkKind
 
 
 class AutopilotPlacement(enum.StrEnum):

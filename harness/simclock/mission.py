@@ -184,7 +184,11 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     from harness.simclock import udp
 
     udp.install(rt, ep)  # sockets: sim-time waits, MAVLink to this vehicle, UDP to 10.42.0.x on the radio
-    api = mavsdk_compat.install(spec.script, ep, os.environ.get("HARNESS_MAVSDK_API") or None)
+    forced = os.environ.get("HARNESS_MAVSDK_API") or None
+    if forced is not None and forced not in set(mavsdk_compat.MavsdkApi):
+        choices = ", ".join(a.value for a in mavsdk_compat.MavsdkApi if a.value)
+        raise ScenarioError(f"HARNESS_MAVSDK_API={forced!r}: expected one of {choices}")
+    api = mavsdk_compat.install(spec.script, ep, mavsdk_compat.MavsdkApi(forced) if forced else None)
     if api:
         log.info("mission %s: MAVSDK %s API, vehicle endpoints %s", spec.name, api, ep)
 

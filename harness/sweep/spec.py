@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.core.errors import ScenarioError
+from harness.net.model import NetworkKind
 from harness.scenario.config import load_scenario, parse_value
 
 _MAX_RUNS = 100_000
@@ -181,13 +182,13 @@ def _validate(scenario: Path, sets: list[tuple[str, Any]], what: str) -> None:
         raise ScenarioError(text if text.startswith("--set ") else f"{what}: {text}") from None
 
 
-def _validate_network(model: str, params: dict[str, Any]) -> None:
+def _validate_network(model: NetworkKind, params: dict[str, Any]) -> None:
     """The network model's parameters are checked by the network process at start; a sweep checks them now."""
-    if model == "builtin":
+    if model == NetworkKind.BUILTIN:
         from harness.net.builtin import RadioConfig
 
         RadioConfig.from_params(params)
-    elif model == "ns3":
+    elif model == NetworkKind.NS3:
         from harness.net.ns3model import Ns3Config
 
         Ns3Config.from_params(params)

@@ -18,6 +18,7 @@ autopilots together.)
 from __future__ import annotations
 
 import contextlib
+import enum
 import logging
 import os
 import selectors
@@ -32,6 +33,11 @@ from harness.core.clock import WALL, Clock
 log = logging.getLogger(__name__)
 
 _OP_TIMEOUT_S = 5.0
+
+
+class _Op(enum.Enum):
+    ADD = "add"
+    REMOVE = "remove"
 
 
 class HubMember(Protocol):
@@ -62,7 +68,7 @@ class MavlinkHub:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
-        self._ops: deque[tuple[str, HubMember, threading.Event]] = deque()
+        self._ops: deque[tuple[_Op, HubMember, threading.Event]] = deque()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
@@ -70,13 +76,13 @@ class MavlinkHub:
     # ------------------------------------------------------------------ membership
     def add(self, server: HubMember) -> None:
         """Serve ``server`` (from any thread; applied by the hub thread when it runs)."""
-        self._apply_or_queue("add", server)
+        self._apply_or_queue(_Op.ADD, server)
 
     def remove(self, server: HubMember) -> None:
         """Stop serving ``server``; on return the hub no longer touches its sockets."""
-        self._apply_or_queue("remove", server)
+        self._apply_or_queue(_Op.REMOVE, server)
 
-    def _apply_or_queue(self, op: str, server: HubMember) -> None:
+    def _apply_or_queue(self, op: _Op, server: HubMember) -> None:
         thread = self._thread
         if thread is None or not thread.is_alive() or thread is threading.current_thread():
             self._apply(op, server)
@@ -85,10 +91,10 @@ class MavlinkHub:
         self._ops.append((op, server, done))
         self._signal()
         if not done.wait(_OP_TIMEOUT_S):
-            log.warning("%s: the hub thread did not %s vehicle %d in time", self.name, op, server.vehicle)
+            log.warning("%s: the hub thread did not %s vehicle %d in time", self.name, op.value, server.vehicle)
 
-    def _apply(self, op: str, server: HubMember) -> None:
-        if op == "add":
+    def _apply(self, op: _Op, server: HubMember) -> None:
+        if op is _Op.ADD:
             if server in self._servers:
                 return
             self._servers[server] = None
