@@ -20,7 +20,7 @@ import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple, Protocol
+from typing import Protocol
 
 from harness.core.geo import Quat, Vec3
 
@@ -112,14 +112,10 @@ class LandedState(enum.IntEnum):
     LANDING = 4
 
 
-class TickStatus(NamedTuple):
-    """What the autopilot reports with each tick's motor commands (END-TICK-AC ``status``, for recording)."""
-
-    armed: bool
-    landed_state: int
-    """MAV_LANDED_STATE (ON_GROUND while disarmed)."""
-    main_mode: int
-    sub_mode: int
+TickStatus = tuple[bool, int, int, int]
+"""What the autopilot reports with each tick's motor commands (END-TICK-AC ``status``, for recording):
+(armed, MAV_LANDED_STATE — ON_GROUND while disarmed —, PX4 main mode, sub mode). A plain tuple: it is made
+for every vehicle on every tick."""
 
 
 class Failsafe(enum.StrEnum):

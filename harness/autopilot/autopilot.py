@@ -191,7 +191,7 @@ class Autopilot:
         """Armed, landed state and PX4 mode, for END-TICK-AC (packed there by ``protocol.pack_status``)."""
         c = self.core
         mode = c.mode.value
-        return TickStatus(c.armed, int(c.landed_state) if c.armed else 1, int(mode[0]), int(mode[1]))
+        return (c.armed, int(c.landed_state) if c.armed else 1, int(mode[0]), int(mode[1]))
 
     def state(self) -> VehicleState:
         with self._lock:
