@@ -167,6 +167,9 @@ class SimRuntime:
             for w in gated:
                 self._release_locked(w)
             self.stats.waits_released += len(gated)
+        # A thread whose socket received data before this phase may not have run yet to notice (a loaded
+        # machine schedules it late): its wait is still counted idle, so look at the sockets themselves.
+        self._release_ready_io()
         report_at = start + _REPORT_AFTER_NS
         while True:
             with self._mu:
@@ -215,6 +218,14 @@ class SimRuntime:
             self.settle_mavlink = None
         with self._mu:
             self._mavlink_synced = sent
+        self._release_ready_io()
+
+    def _release_ready_io(self) -> None:
+        """Let every thread waiting on a descriptor that is ready now run (clock thread, phase 0).
+
+        Whether a thread runs in this phase then depends on what is in its sockets, not on when the machine
+        happened to schedule it after the data arrived."""
+        with self._mu:
             waiters = [w for w in self._idle.values() if (w.rfds or w.wfds) and not w.released]
         if not waiters:
             return

@@ -144,6 +144,7 @@ class SimSocket(_original_socket):
             super().bind(("127.0.0.1", 0))
             super().sendto(LISTEN_HELLO, (ep.host, ep.udp_port))
             self._mark_mavlink()
+            self._sent()  # settled like any MAVLink: the vehicle sends to it from the next tick on, at any pace
             return
         super().bind(address)
 

@@ -55,21 +55,18 @@ def _three_runs(tmp_path: Path, script: str, duration_s: float) -> list[RunRecor
 
 @pytest.mark.parametrize("script", ["pymavlink_takeoff.py", "dronekit_takeoff.py"])
 def test_same_seed_same_flight_byte_identical_for_socket_scripts(tmp_path: Path, script: str) -> None:
-    """Max speed twice and x5: every recorded pose of both vehicles agrees, start-up included — usually
-    byte for byte; under load a command has been seen to take effect one 4 ms tick apart (0.1 mm)."""
+    """Max speed twice and x5: every recorded pose of both vehicles is the same, byte for byte, start-up
+    included. (A thread that a loaded machine scheduled late used to see its vehicle's answer one phase
+    later, 3 cm apart a few seconds on; streams once kept a grid set by the wall clock.)"""
     if script.startswith("dronekit"):
         pytest.importorskip("dronekit", reason="dronekit2 is in the dev extra")
     runs = _three_runs(tmp_path, script, duration_s=15)
     for i in range(2):
         tracks = [[(m["t_s"], m["pos_ned_m"]) for m in r.vehicle(i).track] for r in runs]
         assert [t for t, _ in tracks[0]] == [t for t, _ in tracks[1]] == [t for t, _ in tracks[2]]
-        worst = max(
-            abs(a - b)
-            for k in (1, 2)
-            for (_, p), (_, q) in zip(tracks[0], tracks[k], strict=True)
-            for a, b in zip(p, q, strict=True)
-        )
-        assert worst < 0.001, f"vehicle {i} flew differently (by up to {worst * 100:.2f} cm)"
+        for k in (1, 2):
+            diff = next(((t, p, q) for (t, p), (_, q) in zip(tracks[0], tracks[k], strict=True) if p != q), None)
+            assert diff is None, f"vehicle {i}, run {k}: first differs at t={diff[0]} s: {diff[1]} vs {diff[2]}"
 
 
 @pytest.mark.parametrize("script", ["takeoff_and_land.py", "mission_rtl.py"])

@@ -47,17 +47,18 @@ class HeartbeatSchedule:
         key = (state.armed, state.mode)
         last, last_sim, sim = self._last_ns, self._last_sim_ns, state.t_ns
         period = self.period_ns
-        if last_sim is None or sim - last_sim >= period:
-            # 1 Hz of sim time on a grid of its own (wall-clock sends never shift it: the same seed gives the
-            # same heartbeats at the same sim times)
-            self._last_sim_ns = sim if last_sim is None or sim - last_sim >= 2 * period else last_sim + period
+        slot = sim - sim % period
+        if last_sim is None or slot > last_sim:
+            # 1 Hz of sim time on a fixed grid (the multiples of the period; wall-clock sends never shift it):
+            # the same seed gives the same heartbeats at the same sim times, whoever services the server when
+            self._last_sim_ns = slot
             self.by_wall = False
         elif last is None or key != self._last_key:
             self.by_wall = False  # a change of arming or mode
         elif now_ns - last >= period:
             self.by_wall = True  # a second of wall time without one: the sim is slow or paused
             if not keep_sim_grid:
-                self._last_sim_ns = sim
+                self._last_sim_ns = slot
         else:
             return False
         self._last_ns = now_ns

@@ -318,31 +318,28 @@ class StreamScheduler:
     def due_by_clock(self, wall_ns: int, sim_ns: int, keep_sim_grid: bool = True) -> list[tuple[int, bool]]:
         """The streams due now, each with whether only the wall clock made it due.
 
-        A stream keeps its phase on the clock that made it due (the next send is one interval after the
-        previous one was due, not after it was served): 10 Hz stays 10 Hz however late the server gets to
-        it, and streams whose intervals divide each other fall due together, so one wake-up serves them
-        all. A stream more than one interval behind starts again from now. With ``keep_sim_grid`` (a peer on
-        sim time listens) the sim-time grid is never moved by a send the wall clock made due (the sim is slow
-        or paused), so a seed gives the same messages at the same sim times whatever the machine's pace;
-        without, a wall-clock send restarts the sim grid too, so a slow sim does not send a stream twice as
-        often as asked (once on each clock).
+        On sim time a stream falls due once in each interval of a fixed grid, the multiples of its interval
+        (``last_sim_ns`` is the start of the last slot served): the same seed gives the same messages at the
+        same sim times, whenever and by whichever thread the server happens to be serviced, and streams whose
+        intervals divide each other fall due together. On the wall clock a stream keeps its phase on the clock
+        that made it due (one interval after the previous one was due, not after it was served); one more than
+        an interval behind starts again from now. A wall-clock send never moves the sim grid; without
+        ``keep_sim_grid`` (no peer on sim time listens) it counts as the send of the current sim slot, so a slow
+        sim does not send a stream twice as often as asked (once on each clock).
         """
         out = []
         for msg_id, s in self._streams.items():
             last_sim, last_wall, interval = s.last_sim_ns, s.last_wall_ns, s.interval_ns
+            slot = sim_ns - sim_ns % interval
             by_wall = False
-            if last_wall is None or last_sim is None:
-                s.last_sim_ns, s.last_wall_ns = sim_ns, wall_ns
-            elif sim_ns - last_sim >= interval:
-                nxt = last_sim + interval
-                s.last_sim_ns = nxt if sim_ns - nxt < interval else sim_ns
-                s.last_wall_ns = wall_ns
+            if last_wall is None or last_sim is None or slot > last_sim:
+                s.last_sim_ns, s.last_wall_ns = slot, wall_ns
             elif wall_ns - last_wall >= interval:
                 nxt = last_wall + interval
                 s.last_wall_ns = nxt if wall_ns - nxt < interval else wall_ns
                 by_wall = True
                 if not keep_sim_grid:
-                    s.last_sim_ns = sim_ns
+                    s.last_sim_ns = slot
             else:
                 continue
             out.append((msg_id, by_wall))
