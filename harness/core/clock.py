@@ -46,8 +46,7 @@ class WallClock:
     unix_ns = staticmethod(real_time_ns)
 
     def sleep_ns(self, ns: int) -> None:
-        if ns > 0:
-            real_sleep(ns / NS_PER_S)
+        real_sleep(max(0, ns) / NS_PER_S)  # sleep(0) still yields the processor, as time.sleep(0) does
 
 
 WALL: Final = WallClock()
