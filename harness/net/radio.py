@@ -17,8 +17,9 @@ import os
 from dataclasses import dataclass
 
 from harness.core.errors import HarnessError
+from harness.simclock.installed import current
 from harness.simclock.protocol import BROADCAST
-from harness.simclock.runtime import Delivery, SimRuntime, current
+from harness.simclock.runtime import Delivery, SimRuntime
 
 
 @dataclass(frozen=True)

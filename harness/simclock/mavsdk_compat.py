@@ -77,7 +77,7 @@ class _AliasFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 def _patch_grpc(ep: VehicleEndpoints | None) -> None:
-    from harness.simclock.runtime import current
+    from harness.simclock.installed import current
 
     system_mod = importlib.import_module("mavsdk_grpc.system")
     System = system_mod.System
@@ -124,7 +124,7 @@ def _hold_phase_during_requests() -> None:
     """
     from grpc.aio import _channel
 
-    from harness.simclock.runtime import current
+    from harness.simclock.installed import current
 
     callable_cls: Any = _channel.UnaryUnaryMultiCallable
     if getattr(callable_cls, "_harness_holds", False):

@@ -20,7 +20,8 @@ from typing import Any
 
 from harness.core.clock import NS_PER_S
 from harness.simclock import iowait
-from harness.simclock.runtime import INSTALLED, SimRuntime, Waiter
+from harness.simclock.installed import INSTALLED
+from harness.simclock.runtime import SimRuntime, Waiter
 
 _originals: dict[tuple[object, str], Any] = {}
 

@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 from types import FrameType
 
 from harness.core.clock import NS_PER_S, WALL, Clock
-from harness.core.endpoints import VehicleEndpoints
 from harness.simclock.protocol import EVERY_PHASE, NO_DEADLINE
 
 log = logging.getLogger(__name__)
@@ -573,30 +572,3 @@ def _thread_code_is_script(t: threading.Thread) -> bool:
     # phase the machine's pace gives it. Only service threads of libraries that block in C for the whole run
     # and reach the script through its gated event loop stay outside (gRPC's poller, mavsdk-grpc's readers).
     return module_name.split(".", 1)[0] not in _SERVICE_MODULES
-
-
-class Installed:
-    """The mission runtime's one piece of process-wide state: what is installed in this process.
-
-    Patching replaces process-wide functions (``time.sleep``, ``socket.socket``), so what they run on is
-    process-wide too; it lives here and nowhere else (:data:`INSTALLED`): ``patch.install`` sets ``runtime``,
-    ``simsocket.install`` sets ``sockets`` and ``endpoints``.
-    """
-
-    __slots__ = ("endpoints", "runtime", "sockets")
-
-    def __init__(self) -> None:
-        self.runtime: SimRuntime | None = None
-        """The runtime time and waits follow (``patch.install``)."""
-        self.sockets: SimRuntime | None = None
-        """The runtime the mission's sockets wait on and send radio packets through (``simsocket.install``)."""
-        self.endpoints: VehicleEndpoints | None = None
-        """The vehicle a script's MAVLink addresses are mapped to (``simsocket.install``)."""
-
-
-INSTALLED = Installed()
-
-
-def current() -> SimRuntime | None:
-    """The sim runtime of this process, if it runs under ``harness mission``."""
-    return INSTALLED.runtime

@@ -33,7 +33,8 @@ from harness.core.endpoints import (
     udp_listen_redirected,
 )
 from harness.simclock import iowait
-from harness.simclock.runtime import INSTALLED, SimRuntime
+from harness.simclock.installed import INSTALLED
+from harness.simclock.runtime import SimRuntime
 
 _original_socket = _socket.socket
 _T = TypeVar("_T")

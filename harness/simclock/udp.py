@@ -20,8 +20,9 @@ from typing import Any
 
 from harness.core.endpoints import VehicleEndpoints, udp_listen_redirected
 from harness.simclock import simsocket
+from harness.simclock.installed import INSTALLED
 from harness.simclock.protocol import BROADCAST
-from harness.simclock.runtime import INSTALLED, SimRuntime
+from harness.simclock.runtime import SimRuntime
 from harness.simclock.simsocket import SimSocket
 
 _original_socket = simsocket._original_socket
