@@ -11,19 +11,20 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from harness import cli_types as ct
-from harness.errors import HarnessError, ScenarioError
+from harness.core.errors import HarnessError, ScenarioError
 
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
-    from harness.scenario.launcher import Launcher, LaunchPlan, MissionPlan
+    from harness.run.launcher import Launcher
+    from harness.scenario.plan import LaunchPlan, MissionPlan
     from harness.sweep.runner import SweepProgress
 
 
 def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
-    from harness.simclock.mission import MissionSpec, main_mission
+    from harness.simclock.mission import MissionHooks, MissionSpec, run_mission
 
     channel = a.channel or os.environ.get("HARNESS_CHANNEL")
     if not channel:
@@ -33,13 +34,37 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
     if not script.is_file():
         raise ScenarioError(f"harness mission: script {script} does not exist")
     name = a.name or f"mission:{script.name}:{vehicle}"
-    main_mission(MissionSpec(script, tuple(script_args), channel, vehicle, name))
-    return 0  # not reached
+    hooks = MissionHooks(
+        report=lambda line: print(f"harness mission: {line}", file=sys.stderr), end_process=_end_mission
+    )
+    try:
+        code = run_mission(MissionSpec(script, tuple(script_args), channel, vehicle, name), hooks)
+    except ScenarioError as exc:
+        print(f"harness mission: {exc}", file=sys.stderr)
+        code = 2
+    except Exception as exc:
+        print(f"harness mission: {exc}", file=sys.stderr)
+        code = 1
+    _end_mission(code)
+
+
+def _end_mission(code: int) -> NoReturn:
+    """End a mission process at once: a library may have left a non-daemon thread behind, and whatever the
+    script started (mavsdk_server) must not outlive it."""
+    from harness.simclock.mission import kill_descendants
+
+    kill_descendants()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:
+            pass
+    os._exit(code)
 
 
 def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
     from harness.channel import Channel, ChannelConfig
-    from harness.secrets import channel_secret
+    from harness.core.secrets import channel_secret
 
     if a.secret:
         print("harness channel: --secret shows in ps; prefer --secret-file or $HARNESS_SECRET", file=sys.stderr)
@@ -81,7 +106,8 @@ def _progress_printer() -> Callable[[str], None]:
 
 
 def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None) -> LaunchPlan:
-    from harness.scenario.launcher import LaunchPlan, MissionPlan
+    from harness.net.model import NetworkKind
+    from harness.scenario.plan import LaunchPlan, MissionPlan
 
     if getattr(a, "scenario", None):
         from harness.scenario.config import load_scenario
@@ -124,7 +150,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             seed=a.seed or 0,
             speed=a.speed,
             duration_s=a.duration,
-            network=a.network or "none",
+            network=NetworkKind(a.network or "none"),
             progress=None if getattr(a, "no_progress", False) else _progress_printer(),
             pause_at_s=a.pause_at,
             pause_wall_s=a.pause_for,
@@ -160,7 +186,7 @@ def _checked(plan: LaunchPlan) -> LaunchPlan:
 
 def _tree_options(a: argparse.Namespace) -> dict[str, Any]:
     """--remote-vehicles, --accept, --secret-file, --join-timeout: the root of a tree across machines."""
-    from harness.scenario.tree import parse_workers, read_secret
+    from harness.run.tree import parse_workers, read_secret
 
     workers = {"workers": parse_workers(a.workers)} if getattr(a, "workers", None) else {}
     remote = getattr(a, "remote_vehicles", None)
@@ -178,7 +204,7 @@ def _tree_options(a: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.scenario.join import plan_from_args, run_join
+    from harness.run.join import plan_from_args, run_join
 
     _terminate_as_interrupt()
     result = run_join(plan_from_args(a, rest, _progress_printer()))
@@ -191,7 +217,7 @@ def _cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
 
 def _swarm_mission(a: argparse.Namespace, script_args: list[str] | None) -> MissionPlan | None:
     """``--swarm-mission PATH``: one script for every vehicle (``docs/swarm.md``)."""
-    from harness.scenario.launcher import MissionPlan
+    from harness.scenario.plan import MissionPlan
 
     path = getattr(a, "swarm_mission", None)
     if path is None:
@@ -270,7 +296,7 @@ def _live_view(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, lis
 
 
 def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.scenario.launcher import Launcher
+    from harness.run.launcher import Launcher
 
     _terminate_as_interrupt()
     plan = _plan_from_args(a, rest)
@@ -368,7 +394,8 @@ def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
 
 def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     """Vehicles at real time for a ground station and hand-run scripts, until Ctrl-C."""
-    from harness.scenario.launcher import Launcher
+    from harness.run.launcher import Launcher
+    from harness.run.result import RunStatus
 
     a.mission, a.duration, a.plot = [], None, False
     _terminate_as_interrupt()
@@ -383,7 +410,7 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     finally:
         for viewer in natives:
             viewer.stop()
-    if result.status not in ("ok", "interrupted"):
+    if result.status not in (RunStatus.OK, RunStatus.INTERRUPTED):
         print(f"harness sitl: {result.status}: {result.message}", file=sys.stderr)
         return 1
     return 0

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import msgspec
 
-from harness.autopilot.api import CommandResult, FlightMode, LandedState, Severity
+from harness.autopilot.api import CommandResult, Failsafe, FlightMode, LandedState, Severity
 from harness.fdm.frame import MOTOR_COUNT, Imu, SensorFrame
 
 if TYPE_CHECKING:
@@ -137,7 +137,7 @@ class FailureInjector:
         return CommandResult.accepted()
 
     def _say(self, text: str) -> None:
-        self.ap._say(Severity.WARNING, text)
+        self.ap.say(Severity.WARNING, text)
 
     def off(self, unit: FailureUnit) -> bool:
         return self.active.get(unit) == FailureType.OFF
@@ -204,15 +204,15 @@ class FailureInjector:
             e.forget_gps_motion()
         if e.pos_valid and not ap.config.use_ground_truth and c.t_ns - e.last_gps_ns > timeout_ns:
             e.pos_valid = False
-            ap._say(Severity.CRITICAL, "No GPS: position estimate invalid")
+            ap.say(Severity.CRITICAL, "No GPS: position estimate invalid")
         if e.pos_valid or not c.armed or c.landed_state == LandedState.ON_GROUND:
             return
-        if c.mode not in _NEEDS_POSITION or (c.mode == FlightMode.OFFBOARD and ap._offboard_kind == "att"):
+        if c.mode not in _NEEDS_POSITION or (c.mode == FlightMode.OFFBOARD and ap.flies_attitude()):
             return  # (offboard attitude setpoints need no position)
         if c.mode == FlightMode.POSCTL and ap.params["COM_POSCTL_NAVL"] == 0 and ap.manual.fresh():
             target = FlightMode.ALTCTL
         else:
             target = FlightMode.LAND  # without a position: PX4's Descend
-        ap.failsafe = "navigation"
-        ap._say(Severity.CRITICAL, f"Failsafe: no position estimate, {target.name}")
-        ap._set_mode(target)
+        ap.failsafe = Failsafe.NAVIGATION
+        ap.say(Severity.CRITICAL, f"Failsafe: no position estimate, {target.name}")
+        ap.switch_mode(target)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from harness.autopilot.api import AttitudeTarget, CommandResult, FlightMode, LandedState, Severity
+from harness.autopilot.api import AttitudeTarget, CommandResult, Failsafe, FlightMode, LandedState, Severity
 from harness.autopilot.control import NAN
 from harness.autopilot.mathutil import G_M_S2
 
@@ -95,7 +95,7 @@ class ManualControl:
         self.last_ns = max(self.ap.core.t_ns, 0)
         if self.lost:
             self.lost = False
-            self.ap._say(Severity.INFO, "Manual control regained")
+            self.ap.say(Severity.INFO, "Manual control regained")
         return CommandResult.accepted()
 
     def fresh(self) -> bool:
@@ -197,7 +197,7 @@ class ManualControl:
         if self.last_ns is None or self.lost or self.fresh():
             return
         self.lost = True
-        ap._say(Severity.CRITICAL, "Manual control lost")
+        ap.say(Severity.CRITICAL, "Manual control lost")
         if not c.armed or c.landed_state == LandedState.ON_GROUND:
             return
         act = int(ap.params["NAV_RCL_ACT"])
@@ -211,13 +211,13 @@ class ManualControl:
         if mode not in STICK_MODES and (act == 0 or exempt_here):
             return
         if act == 6:
-            ap._disarm("Failsafe: manual control lost, disarming")
+            ap.cut_motors("Failsafe: manual control lost, disarming")
             return
         target = {2: FlightMode.RTL, 3: FlightMode.LAND, 5: FlightMode.LAND}.get(act, FlightMode.HOLD)
         if target == FlightMode.RTL and ap.home_ned is None:
             target = FlightMode.LAND
         if not c.est.pos_valid:
             target = FlightMode.LAND
-        ap.failsafe = "rc_loss"
-        ap._say(Severity.CRITICAL, f"Failsafe: manual control lost, {target.name}")
-        ap._set_mode(target)
+        ap.failsafe = Failsafe.RC_LOSS
+        ap.say(Severity.CRITICAL, f"Failsafe: manual control lost, {target.name}")
+        ap.switch_mode(target)

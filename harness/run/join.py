@@ -29,13 +29,13 @@ from pathlib import Path
 
 from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
-from harness.errors import ScenarioError, SimulationError
-from harness.scenario import tree
-from harness.scenario.children import Children
-from harness.scenario.launcher import MissionPlan
-from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
-from harness.scenario.swarm import mission_argv
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep
+from harness.core.clock import NS_PER_S, real_monotonic_ns, real_sleep
+from harness.core.errors import ScenarioError, SimulationError
+from harness.run import tree
+from harness.run.children import Children
+from harness.run.ports import GCS_PORT, PX4_API_BASE, allocate
+from harness.run.swarm import mission_argv
+from harness.scenario.plan import MissionPlan
 
 log = logging.getLogger(__name__)
 
