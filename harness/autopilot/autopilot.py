@@ -186,6 +186,9 @@ class Autopilot:
         c = self.core
         return c.mode == FlightMode.OFFBOARD and c._climb_requested(c.nav.sp)
 
+    def state_changed(self) -> None:
+        self._cache = None
+
     def flies_attitude(self) -> bool:
         """Whether OFFBOARD flies attitude targets (the last offboard input was SET_ATTITUDE_TARGET)."""
         return self._offboard_kind == OffboardKind.ATTITUDE

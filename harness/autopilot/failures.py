@@ -16,15 +16,40 @@ to Land, which without a position is PX4's Descend (level, straight down at the 
 from __future__ import annotations
 
 import enum
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import msgspec
 
 from harness.autopilot.api import CommandResult, Failsafe, FlightMode, LandedState, Severity
+from harness.autopilot.supervisor import Supervised
 from harness.fdm.frame import MOTOR_COUNT, Imu, SensorFrame
 
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
+
+class _ManualInput(Protocol):
+    def fresh(self) -> bool: ...
+
+
+class _Config(Protocol):
+    @property
+    def use_ground_truth(self) -> bool: ...
+
+
+class FailureHost(Supervised, Protocol):
+    """What the failure injector reads of, and does to, its autopilot (``harness.autopilot.Autopilot``)."""
+
+    @property
+    def config(self) -> _Config: ...
+
+    @property
+    def manual(self) -> _ManualInput: ...
+
+    def flies_attitude(self) -> bool:
+        """Whether OFFBOARD flies attitude targets (no position needed)."""
+        ...
+
+    def state_changed(self) -> None:
+        """Drop the cached state snapshot."""
+        ...
 
 
 class FailureUnit(enum.IntEnum):
@@ -94,7 +119,7 @@ _NEEDS_POSITION = frozenset(
 class FailureInjector:
     """The injected failures of one vehicle; called by its ``Autopilot`` under the autopilot's lock."""
 
-    def __init__(self, ap: Autopilot) -> None:
+    def __init__(self, ap: FailureHost) -> None:
         self.ap = ap
         self.active: dict[FailureUnit, FailureType] = {}
         self.motors_off: set[int] = set()
@@ -132,7 +157,7 @@ class FailureInjector:
             bat = self.ap.core.battery
             bat.consumed_mah = max(bat.consumed_mah, self.ap.params["BAT_CAPACITY"])
         self.rc_off = self.active.get(FailureUnit.SYSTEM_RC_SIGNAL) == FailureType.OFF
-        self.ap._cache = None
+        self.ap.state_changed()
         self._say(f"Failure injected: {u.name.lower()} {k.name.lower()}")
         return CommandResult.accepted()
 

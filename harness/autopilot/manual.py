@@ -25,14 +25,25 @@ after sticks were used: in a stick mode, ``NAV_RCL_ACT`` (1 hold, 2 return, 3 la
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from harness.autopilot.api import AttitudeTarget, CommandResult, Failsafe, FlightMode, LandedState, Severity
 from harness.autopilot.control import NAN
 from harness.autopilot.mathutil import G_M_S2
+from harness.autopilot.supervisor import Supervised
 
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
+
+class _RcSignal(Protocol):
+    @property
+    def rc_off(self) -> bool: ...
+
+
+class ManualHost(Supervised, Protocol):
+    """What manual control reads of, and does to, its autopilot (``harness.autopilot.Autopilot``)."""
+
+    @property
+    def failures(self) -> _RcSignal: ...
+
 
 STICK_MODES = frozenset({FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED, FlightMode.MANUAL})
 _ATTITUDE_MODES = frozenset({FlightMode.STABILIZED, FlightMode.MANUAL})
@@ -67,7 +78,7 @@ def _euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float,
 class ManualControl:
     """The sticks of one vehicle and the stick modes; called under the autopilot's lock."""
 
-    def __init__(self, ap: Autopilot) -> None:
+    def __init__(self, ap: ManualHost) -> None:
         self.ap = ap
         self.x = self.y = self.r = 0.0
         self.z = 0.5
