@@ -24,7 +24,7 @@ import socket as _socket
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from harness.core.clock import NS_PER_S, real_monotonic_ns
+from harness.core.clock import NS_PER_S, WALL
 from harness.core.endpoints import (
     LISTEN_HELLO,
     SETTLE_PREFIX,
@@ -245,9 +245,9 @@ class _Settler:
         self._seq += 1
         token = SETTLE_PREFIX + str(self._seq).encode()
         self._sock.sendto(token, self._dst)
-        deadline = real_monotonic_ns() + int((self.PATIENCE_S if self._answered else self.IMPATIENCE_S) * NS_PER_S)
+        deadline = WALL.now_ns() + int((self.PATIENCE_S if self._answered else self.IMPATIENCE_S) * NS_PER_S)
         while True:
-            r, _, _ = iowait.real_select([self._sock], [], [], max(0, deadline - real_monotonic_ns()) / NS_PER_S)
+            r, _, _ = iowait.real_select([self._sock], [], [], max(0, deadline - WALL.now_ns()) / NS_PER_S)
             if not r:
                 self._answered = False
                 return False
