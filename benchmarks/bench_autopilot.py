@@ -81,7 +81,7 @@ def with_lockstep_core(n: int, seconds: float) -> dict[str, float]:
     """The shipped layout of ``harness run``: physics owns the root channel (``attach_physics``) and steps the
     autopilots inside its process through it (``NativeLink``, ``attach_local_autopilots``) with the shipped
     phase period (every 5th tick); no missions or network are attached, so phases are empty."""
-    from harness.fdm.link import NativeLink
+    from harness.run.link import NativeLink
 
     tick_hz = round(RATES["tick_hz"])
     ch = Channel(ChannelConfig(tick_hz=tick_hz, phase_every=5, stall_timeout_s=30))

@@ -18,10 +18,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from harness.core.clock import NS_PER_S
 from harness.record.rrd import RrdRecorder
 from harness.record.viewer import free_port
 from harness.record.world import WorldRecorder
-from harness.simclock.clock import NS_PER_S
 
 RECORD_HZ = 50
 

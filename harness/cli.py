@@ -9,21 +9,30 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from harness import cli_types as ct
-from harness.errors import HarnessError, ScenarioError
+from harness.cli_run import (
+    cmd_channel,
+    cmd_join,
+    cmd_plot,
+    cmd_sweep,
+    progress_printer,
+    terminate_as_interrupt,
+    tree_options,
+)
+from harness.core.errors import HarnessError, ScenarioError
 
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
-    from harness.scenario.launcher import Launcher, LaunchPlan, MissionPlan
-    from harness.sweep.runner import SweepProgress
+    from harness.run.launcher import Launcher
+    from harness.scenario.plan import LaunchPlan, MissionPlan
 
 
 def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
-    from harness.simclock.mission import MissionSpec, main_mission
+    from harness.simclock.mission import MissionHooks, MissionSpec, run_mission
 
     channel = a.channel or os.environ.get("HARNESS_CHANNEL")
     if not channel:
@@ -33,55 +42,37 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
     if not script.is_file():
         raise ScenarioError(f"harness mission: script {script} does not exist")
     name = a.name or f"mission:{script.name}:{vehicle}"
-    main_mission(MissionSpec(script, tuple(script_args), channel, vehicle, name))
-    return 0  # not reached
-
-
-def _cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
-    from harness.channel import Channel, ChannelConfig
-    from harness.secrets import channel_secret
-
-    if a.secret:
-        print("harness channel: --secret shows in ps; prefer --secret-file or $HARNESS_SECRET", file=sys.stderr)
-    secret = channel_secret(a.secret, a.secret_file)
-    cfg = ChannelConfig(
-        address=a.listen,
-        name=a.name,
-        parent=a.parent,
-        secret=secret,
-        tick_hz=a.tick_hz,
-        phase_every=a.phase_every,
-        stall_timeout_s=a.stall_timeout,
+    hooks = MissionHooks(
+        report=lambda line: print(f"harness mission: {line}", file=sys.stderr), end_process=_end_mission
     )
-    ch = Channel(cfg)
-    address = ch.bind()
-    print(f"channel {cfg.name} listening on {address}", flush=True)
-    signal.signal(signal.SIGTERM, lambda *_: ch.stop())
     try:
-        ch.serve()
-    except KeyboardInterrupt:
-        return 130
-    for f in ch.faults:
-        print(f"fault: {f.peer} ({f.kind}) {f.reason}", file=sys.stderr)
-    if ch.failure:
-        print(f"run failed: {ch.failure}", file=sys.stderr)
-        return 1
-    return 0
+        code = run_mission(MissionSpec(script, tuple(script_args), channel, vehicle, name), hooks)
+    except ScenarioError as exc:
+        print(f"harness mission: {exc}", file=sys.stderr)
+        code = 2
+    except Exception as exc:
+        print(f"harness mission: {exc}", file=sys.stderr)
+        code = 1
+    _end_mission(code)
 
 
-def _progress_printer() -> Callable[[str], None]:
-    if sys.stderr.isatty():
+def _end_mission(code: int) -> NoReturn:
+    """End a mission process at once: a library may have left a non-daemon thread behind, and whatever the
+    script started (mavsdk_server) must not outlive it."""
+    from harness.simclock.mission import kill_descendants
 
-        def live(line: str) -> None:
-            sys.stderr.write("\r\033[K" + line)
-            sys.stderr.flush()
-
-        return live
-    return lambda line: print(line, file=sys.stderr, flush=True)
+    kill_descendants()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:
+            pass
+    os._exit(code)
 
 
 def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None) -> LaunchPlan:
-    from harness.scenario.launcher import LaunchPlan, MissionPlan
+    from harness.net.model import NetworkKind
+    from harness.scenario.plan import LaunchPlan, MissionPlan
 
     if getattr(a, "scenario", None):
         from harness.scenario.config import load_scenario
@@ -91,7 +82,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         return load_scenario(
             a.scenario,
             swarm_mission=_swarm_mission(a, script_args),
-            **_tree_options(a),
+            **tree_options(a),
             sets=_assignments(getattr(a, "set", None) or []),
             out=Path(a.out) if a.out else None,
             seed=a.seed,
@@ -99,7 +90,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             duration_s=a.duration,
             network=a.network,
             signing_key_file=a.signing_key_file,
-            progress=None if getattr(a, "no_progress", False) else _progress_printer(),
+            progress=None if getattr(a, "no_progress", False) else progress_printer(),
             **_firmware_options(a),
         )
     if getattr(a, "set", None):
@@ -124,13 +115,13 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             seed=a.seed or 0,
             speed=a.speed,
             duration_s=a.duration,
-            network=a.network or "none",
-            progress=None if getattr(a, "no_progress", False) else _progress_printer(),
+            network=NetworkKind(a.network or "none"),
+            progress=None if getattr(a, "no_progress", False) else progress_printer(),
             pause_at_s=a.pause_at,
             pause_wall_s=a.pause_for,
             signing_key_file=a.signing_key_file,
             **_firmware_options(a),
-            **_tree_options(a),
+            **tree_options(a),
         )
     )
 
@@ -158,40 +149,9 @@ def _checked(plan: LaunchPlan) -> LaunchPlan:
     return plan
 
 
-def _tree_options(a: argparse.Namespace) -> dict[str, Any]:
-    """--remote-vehicles, --accept, --secret-file, --join-timeout: the root of a tree across machines."""
-    from harness.scenario.tree import parse_workers, read_secret
-
-    workers = {"workers": parse_workers(a.workers)} if getattr(a, "workers", None) else {}
-    remote = getattr(a, "remote_vehicles", None)
-    if remote is None and getattr(a, "accept", None) is None:
-        return workers
-    if remote is not None and remote < 0:
-        raise ScenarioError(f"--remote-vehicles must be >= 0, got {remote}")
-    return {
-        "remote_vehicles": remote or 0,
-        "listen": a.accept,
-        "secret": read_secret(a.secret_file),
-        "join_timeout_s": a.join_timeout,
-        **workers,
-    }
-
-
-def _cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.scenario.join import plan_from_args, run_join
-
-    _terminate_as_interrupt()
-    result = run_join(plan_from_args(a, rest, _progress_printer()))
-    for vehicle, code in result.exits.items():
-        print(f"  vehicle {vehicle}: mission exit {code}")
-    if result.message:
-        print(result.message, file=sys.stderr)
-    return result.exit_code
-
-
 def _swarm_mission(a: argparse.Namespace, script_args: list[str] | None) -> MissionPlan | None:
     """``--swarm-mission PATH``: one script for every vehicle (``docs/swarm.md``)."""
-    from harness.scenario.launcher import MissionPlan
+    from harness.scenario.plan import MissionPlan
 
     path = getattr(a, "swarm_mission", None)
     if path is None:
@@ -232,17 +192,6 @@ def _assignments(texts: list[str]) -> list[tuple[str, object]]:
     return out
 
 
-def _terminate_as_interrupt() -> None:
-    """SIGINT and SIGTERM (Ctrl-C, a CI timeout, a supervisor) end a run cleanly: children stopped, summary
-    written — also when the shell started us in the background with SIGINT ignored."""
-
-    def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-
-
 def _live_view(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, list[NativeViewer]]:
     """``--view [native|web]``: the plan serves its 3D view live; the viewer starts once the stream is up."""
     import dataclasses
@@ -270,9 +219,9 @@ def _live_view(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, lis
 
 
 def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.scenario.launcher import Launcher
+    from harness.run.launcher import Launcher
 
-    _terminate_as_interrupt()
+    terminate_as_interrupt()
     plan = _plan_from_args(a, rest)
     natives: list[NativeViewer] = []
     if getattr(a, "view", None):
@@ -332,7 +281,7 @@ def _cmd_view(a: argparse.Namespace, rest: list[str]) -> int:
             f"harness view: {rrd} does not exist (runs write world.rrd when the view extra is installed; "
             "give a run directory such as runs/demo)"
         )
-    _terminate_as_interrupt()
+    terminate_as_interrupt()
     if a.web:
         proc, url = serve_file_web(rrd, a.port)
         print(f"3D view (web viewer): {url}  (Ctrl-C stops)", flush=True)
@@ -368,10 +317,11 @@ def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
 
 def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     """Vehicles at real time for a ground station and hand-run scripts, until Ctrl-C."""
-    from harness.scenario.launcher import Launcher
+    from harness.run.launcher import Launcher
+    from harness.run.result import RunStatus
 
     a.mission, a.duration, a.plot = [], None, False
-    _terminate_as_interrupt()
+    terminate_as_interrupt()
     # hand-run MAVSDK scripts listen on 14540 + i (udpin://0.0.0.0:14540 reaches vehicle 0)
     plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540)
     natives: list[NativeViewer] = []
@@ -383,77 +333,9 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     finally:
         for viewer in natives:
             viewer.stop()
-    if result.status not in ("ok", "interrupted"):
+    if result.status not in (RunStatus.OK, RunStatus.INTERRUPTED):
         print(f"harness sitl: {result.status}: {result.message}", file=sys.stderr)
         return 1
-    return 0
-
-
-def _sweep_bar() -> Callable[[SweepProgress], None]:
-    """The sweep's progress bar on stderr: redrawn in place on a terminal, a line per finished run otherwise."""
-    tty = sys.stderr.isatty()
-    last_seen: list[tuple[int, str]] = [(-1, "")]
-
-    def show(pr: SweepProgress) -> None:
-        line = pr.bar()
-        if tty:
-            sys.stderr.write("\r\033[K" + line)
-            sys.stderr.flush()
-        elif pr.done != last_seen[0][0] or (pr.last and pr.last != last_seen[0][1]):
-            last_seen[0] = (pr.done, pr.last)
-            print(line + (f"  {pr.last}" if pr.last else ""), file=sys.stderr, flush=True)
-
-    return show
-
-
-def _cmd_sweep(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.sweep.runner import SweepOptions, quiet_dask, run_sweep
-    from harness.sweep.spec import build_sweep
-
-    if rest:
-        raise ScenarioError(f"harness sweep: unexpected arguments {' '.join(rest)}")
-    spec = build_sweep(a.scenario, a.seeds, a.set)  # every combination validated before anything starts
-    out = Path(a.out) if a.out else Path("runs") / f"sweep-{Path(a.scenario).stem}"
-    opts = SweepOptions(out, a.scheduler, a.runs_per_worker, a.run_timeout, a.retry_failed)
-    quiet_dask(a.verbose == 0)
-    _terminate_as_interrupt()
-    print(f"sweep of {len(spec.runs)} runs into {out}", flush=True)
-    outcome = run_sweep(spec, opts, _sweep_bar())
-    if sys.stderr.isatty():
-        sys.stderr.write("\n")
-    print(
-        f"{'interrupted' if outcome.interrupted else 'done'}: {outcome.ran} run(s) this time, {outcome.kept} kept "
-        f"from before, {len(outcome.failed)} not ok, in {outcome.wall_time_s:.1f} s; results in {out / 'results.csv'}"
-    )
-    for row in outcome.failed:
-        print(f"  {row['run']}: {row.get('status')}: {row.get('message')}", file=sys.stderr)
-    if outcome.interrupted:
-        print("re-run the same command to finish the missing runs", file=sys.stderr)
-    if a.plot and not outcome.interrupted:
-        from harness.sweep.plot import make_sweep_plots
-
-        make_sweep_plots(out)
-        print(f"plots: {out / 'index.html'}")
-    return outcome.exit_code
-
-
-def _cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
-    from harness.record.plot import make_plots
-
-    if (Path(a.dir) / "sweep.json").is_file():
-        from harness.sweep.plot import make_sweep_plots
-
-        for path in make_sweep_plots(Path(a.dir)):
-            print(path)
-        return 0
-    for path in make_plots(Path(a.dir)):
-        print(path)
-    if (Path(a.dir) / "summary.json").is_file():
-        from harness.record.status import KILLED, read_summary
-
-        summary = read_summary(Path(a.dir))
-        if summary.get("status") == KILLED:
-            print(f"note: {summary['message']}", file=sys.stderr)
     return 0
 
 
@@ -553,7 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     pl = sub.add_parser("plot", help="plots and an HTML page from a run directory")
     pl.add_argument("dir")
-    pl.set_defaults(func=_cmd_plot)
+    pl.set_defaults(func=cmd_plot)
 
     sw = sub.add_parser("sweep", help="a scenario over seeds and --set values, on Dask (local cluster by default)")
     sw.add_argument("scenario", help="scenario file (TOML)")
@@ -571,7 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--run-timeout", type=float, default=None, metavar="WALL_S", help="stop a run after this long")
     sw.add_argument("--retry-failed", action="store_true", help="on a re-run, run failed runs again too")
     sw.add_argument("--plot", action="store_true", help="write the sweep's plots at the end")
-    sw.set_defaults(func=_cmd_sweep)
+    sw.set_defaults(func=cmd_sweep)
 
     m = sub.add_parser("mission", help="run an unmodified script as a type-0 subscriber on the sim clock")
     m.add_argument("script")
@@ -594,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
     j.add_argument("--out", default=None, help="directory for this machine's tlogs and mission output")
     j.add_argument("--name", default=None, help="this child channel's name in the run (default join:HOST:PID)")
     j.add_argument("--secret-file", default=None, help="file holding the shared secret (or $HARNESS_CHANNEL_SECRET)")
-    j.set_defaults(func=_cmd_join)
+    j.set_defaults(func=cmd_join)
 
     c = sub.add_parser("channel", help="run a channel on its own (for a tree across machines)")
     c.add_argument("--listen", default="tcp://127.0.0.1:5760")
@@ -607,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--tick-hz", type=ct.rate, default=250.0)
     c.add_argument("--phase-every", type=ct.count, default=5)
     c.add_argument("--stall-timeout", type=ct.wait, default=10.0)
-    c.set_defaults(func=_cmd_channel)
+    c.set_defaults(func=cmd_channel)
     return ap
 
 

@@ -37,7 +37,8 @@ import pytest
 from harness.autopilot.mathutil import quat_to_euler
 from harness.record.status import read_summary
 from harness.record.world import read_topics
-from harness.sweep.results import RunStatus, read_results
+from harness.run.result import RunStatus
+from harness.sweep.results import read_results
 
 
 @dataclass
@@ -116,7 +117,7 @@ class RunRecord:
 
     @property
     def ok(self) -> bool:
-        return self.returncode == 0 and self.summary.get("status") == "ok"
+        return self.returncode == 0 and self.summary.get("status") == RunStatus.OK
 
     @property
     def message(self) -> str:

@@ -22,8 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-Vec3 = tuple[float, float, float]
-Quat = tuple[float, float, float, float]
+from harness.core.geo import Quat, Vec3
 
 
 class MainMode(enum.IntEnum):
@@ -112,6 +111,26 @@ class LandedState(enum.IntEnum):
     IN_AIR = 2
     TAKEOFF = 3
     LANDING = 4
+
+
+TickStatus = tuple[bool, int, int, int]
+"""What the autopilot reports with each tick's motor commands (END-TICK-AC ``status``, for recording):
+(armed, MAV_LANDED_STATE — ON_GROUND while disarmed —, PX4 main mode, sub mode). A plain tuple: it is made
+for every vehicle on every tick."""
+
+
+class Failsafe(enum.StrEnum):
+    """A failsafe the commander has taken (its value is what telemetry and tests see)."""
+
+    NONE = ""
+    BATTERY = "battery"
+    BATTERY_CRITICAL = "battery_critical"
+    OFFBOARD_LOSS = "offboard_loss"
+    GEOFENCE = "geofence"
+    RC_LOSS = "rc_loss"
+    """Manual control lost (``harness.autopilot.manual``)."""
+    NAVIGATION = "navigation"
+    """No position estimate (GPS lost; ``harness.autopilot.failures``)."""
 
 
 class MissionKind(enum.IntEnum):
@@ -396,8 +415,8 @@ class VehicleState:
     """Collective thrust command in [0, 1] (VFR_HUD throttle)."""
     max_speed_m_s: float = 0.0
     """Current horizontal speed limit (changed by DO_CHANGE_SPEED)."""
-    failsafe: str = ""
-    """The active failsafe ('' none, 'battery', 'offboard_loss', 'geofence', 'battery_critical')."""
+    failsafe: Failsafe = Failsafe.NONE
+    """The active failsafe (``Failsafe.NONE``, '', when none)."""
 
     @property
     def in_air(self) -> bool:

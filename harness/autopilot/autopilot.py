@@ -8,6 +8,7 @@ a command changes the state between two steps and its effect shows in the next s
 
 from __future__ import annotations
 
+import enum
 import math
 import threading
 from collections import deque
@@ -18,6 +19,7 @@ from pathlib import Path
 from harness.autopilot.api import (
     AttitudeTarget,
     CommandResult,
+    Failsafe,
     FlightMode,
     GeoPoint,
     LandedState,
@@ -27,6 +29,7 @@ from harness.autopilot.api import (
     OffboardSetpoint,
     Severity,
     StatusText,
+    TickStatus,
     VehicleState,
 )
 from harness.autopilot.failures import FailureInjector
@@ -34,16 +37,25 @@ from harness.autopilot.flight import FlightCore
 from harness.autopilot.flightlog import FlightLog
 from harness.autopilot.follow import FollowTarget
 from harness.autopilot.manual import ManualControl
-from harness.autopilot.mathutil import GeoRef
-from harness.autopilot.navigator import Orbit
+from harness.autopilot.navigator import MissionPhase, Orbit
 from harness.autopilot.params import Params
 from harness.autopilot.snapshot import build_state
-from harness.autopilot.supervisor import arming_check, supervise
+from harness.autopilot.supervisor import Supervisor, arming_check
 from harness.autopilot.validate import check_mission, finite
-from harness.errors import ScenarioError
+from harness.core.clock import WALL, Clock
+from harness.core.errors import ScenarioError
+from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
-from harness.simclock.clock import Clock, WallClock
-from harness.wire.protocol import pack_status
+
+
+class OffboardKind(enum.Enum):
+    """Which offboard input came last: it is the one OFFBOARD mode flies."""
+
+    NONE = enum.auto()
+    SETPOINT = enum.auto()
+    """Position / velocity / acceleration (SET_POSITION_TARGET_*)."""
+    ATTITUDE = enum.auto()
+    """Attitude and thrust (SET_ATTITUDE_TARGET)."""
 
 
 @dataclass(frozen=True)
@@ -68,7 +80,7 @@ class Autopilot:
         self.config = cfg
         self.vehicle = cfg.vehicle
         self.params = params if params is not None else Params(overrides=cfg.params)
-        self.wall = wall_clock if wall_clock is not None else WallClock()
+        self.wall = wall_clock if wall_clock is not None else WALL
         origin = GeoRef(*cfg.origin) if cfg.origin is not None else None
         self.core = FlightCore(self.params, cfg.use_ground_truth, origin)
         self._lock = threading.Lock()
@@ -77,24 +89,22 @@ class Autopilot:
         self._rally: tuple[MissionItem, ...] = ()
         self.home: GeoPoint | None = None
         self.home_ned: tuple[float, float, float] | None = None
-        self.failsafe = ""
+        self.failsafe = Failsafe.NONE
         self._offboard_wall_ns = -(10**18)
         if not cfg.supervise_hz > 0:
             raise ScenarioError(f"autopilot {cfg.vehicle}: supervise_hz must be > 0, got {cfg.supervise_hz}")
         self._super_period_ns = round(1e9 / cfg.supervise_hz)
         self._next_super_ns = 0
         self._armed_ns = 0
-        self._landed_since_ns: int | None = None
-        self._fence_breached = False
-        self._was_airborne = False
-        self._offboard_kind = ""
+        self.supervisor = Supervisor()
+        self._offboard_kind = OffboardKind.NONE
         self._offboard_sp: OffboardSetpoint | None = None
         self._offboard_att: AttitudeTarget | None = None
         self._cache: VehicleState | None = None
         self._bell: Callable[[], None] | None = None
         self._bell_armed = False
         self._ring_at_ns = 0
-        self._rung_status = -1
+        self._rung_status: TickStatus | None = None
         self.failures = FailureInjector(self)
         self.manual = ManualControl(self)
         self.follow = FollowTarget(self)
@@ -114,21 +124,23 @@ class Autopilot:
                 self.flight_log.record(self)
             if c.t_ns >= self._next_super_ns:
                 self._next_super_ns = c.t_ns + self._super_period_ns
-                self._supervise()
+                self.supervisor.check(self)
+                self.failures.supervise()
+                self.manual.supervise()
             nav = c.nav
             if nav.new_reached:
                 for s in nav.new_reached:
                     self._reached.append(MissionReached(frame.t_ns, s))
-                    self._say(Severity.INFO, f"Mission item {s} reached")
+                    self.say(Severity.INFO, f"Mission item {s} reached")
                 nav.new_reached.clear()
             if c.texts:
                 for sev, text in c.texts:
-                    self._say(Severity(sev), text)
+                    self.say(Severity(sev), text)
                 c.texts.clear()
             self._cache = None
             ring = False
             if self._bell_armed:
-                status = self.packed_status()
+                status = self.tick_status()
                 if c.t_ns >= self._ring_at_ns or self._texts or self._reached or status != self._rung_status:
                     self._bell_armed = False
                     self._rung_status = status
@@ -157,54 +169,66 @@ class Autopilot:
             self._ring_at_ns = t_ns
             self._bell_armed = True
 
-    def _say(self, severity: Severity, text: str) -> None:
+    # ------------------------------------------------------------------ for the supervisor (under the lock)
+    def say(self, severity: Severity, text: str) -> None:
         self._texts.append(StatusText(max(self.core.t_ns, 0), severity, text))
         if self.flight_log is not None:
             self.flight_log.text(self.core.t_ns, severity, text)
 
-    def _set_mode(self, mode: FlightMode) -> None:
+    def switch_mode(self, mode: FlightMode) -> None:
         c = self.core
         if c.mode != mode or mode in (FlightMode.TAKEOFF, FlightMode.HOLD, FlightMode.RTL):
             c.mode = mode
             c.nav.enter(mode, c.landed_state == LandedState.ON_GROUND)
         self._cache = None
 
-    def _supervise(self) -> None:
-        supervise(self)
-        self.failures.supervise()
-        self.manual.supervise()
-
-    def _offboard_climbing(self) -> bool:
+    def offboard_climbing(self) -> bool:
         c = self.core
         return c.mode == FlightMode.OFFBOARD and c._climb_requested(c.nav.sp)
 
-    def _to_local(self, lat: float, lon: float) -> tuple[float, float]:
+    def state_changed(self) -> None:
+        self._cache = None
+
+    def flies_attitude(self) -> bool:
+        """Whether OFFBOARD flies attitude targets (the last offboard input was SET_ATTITUDE_TARGET)."""
+        return self._offboard_kind == OffboardKind.ATTITUDE
+
+    def manual_refusal(self, mode: FlightMode) -> str:
+        refusal = self.manual.refuse(mode)
+        return "" if refusal is None else refusal.reason
+
+    def to_local(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
         ref = self.core.est.ref
         if ref is None:
             return (math.nan, math.nan)
-        n, e, _ = ref.to_ned(lat, lon, ref.alt_m)
+        n, e, _ = ref.to_ned(lat_deg, lon_deg, ref.alt_m)
         return (n, e)
 
-    def _disarm(self, why: str) -> None:
+    def offboard_age_s(self) -> float:
+        return (self.wall.now_ns() - self._offboard_wall_ns) * 1e-9
+
+    def cut_motors(self, why: str) -> None:
         c = self.core
         c.armed = False
         c.motors = (0.0, 0.0, 0.0, 0.0)
-        self._was_airborne = False
-        self._landed_since_ns = None
-        self._say(Severity.INFO, why)
+        self.supervisor.reset()
+        self.say(Severity.INFO, why)
         self._cache = None
 
     # ------------------------------------------------------------------ state
-    def packed_status(self) -> int:
-        """Armed, landed state and PX4 mode packed for END-TICK-AC (``protocol.pack_status``)."""
+    def tick_status(self) -> TickStatus:
+        """Armed, landed state and PX4 mode, for END-TICK-AC (packed there by ``protocol.pack_status``)."""
         c = self.core
         mode = c.mode.value
-        return pack_status(c.armed, int(c.landed_state) if c.armed else 1, int(mode[0]), int(mode[1]))
+        return (c.armed, int(c.landed_state) if c.armed else 1, int(mode[0]), int(mode[1]))
 
     def state(self) -> VehicleState:
         with self._lock:
             if self._cache is None:
-                self._cache = build_state(self)
+                preflight_ok = self.arming_check() == ""
+                self._cache = build_state(
+                    self.core, self.vehicle, self.home, self.home_ned, self.failsafe, preflight_ok, self.failures
+                )
             return self._cache
 
     def pop_status_texts(self) -> list[StatusText]:
@@ -232,18 +256,17 @@ class Autopilot:
             if not force:
                 why = self.arming_check()
                 if why:
-                    self._say(Severity.CRITICAL, f"Arming denied: {why}")
+                    self.say(Severity.CRITICAL, f"Arming denied: {why}")
                     return CommandResult.denied(f"Arming denied: {why}")
             c.armed = True
             self._armed_ns = c.t_ns
-            self._landed_since_ns = None
-            self._was_airborne = False
-            self.failsafe = ""
+            self.supervisor.reset()
+            self.failsafe = Failsafe.NONE
             self._set_home_here()
             c.landed_state = LandedState.ON_GROUND
             c.ground_pd = c.est.pd
             c.nav.enter(c.mode, True)
-            self._say(Severity.INFO, "Armed")
+            self.say(Severity.INFO, "Armed")
             return CommandResult.accepted()
 
     def disarm(self, force: bool = False) -> CommandResult:
@@ -253,7 +276,7 @@ class Autopilot:
                 return CommandResult.accepted()
             if c.landed_state != LandedState.ON_GROUND and not force:
                 return CommandResult.denied("Disarming denied: in air (land first, or force to kill the motors)")
-            self._disarm("Disarmed" + (" (forced)" if force else ""))
+            self.cut_motors("Disarmed" + (" (forced)" if force else ""))
             return CommandResult.accepted()
 
     def _set_home_here(self) -> None:
@@ -262,7 +285,7 @@ class Autopilot:
         lat, lon, alt = e.geo()
         self.home = GeoPoint(lat, lon, alt)
         self.core.nav.home = self.home_ned
-        self._say(Severity.INFO, "Home position set")
+        self.say(Severity.INFO, "Home position set")
 
     # ------------------------------------------------------------------ modes
     def set_mode(self, mode: FlightMode) -> CommandResult:
@@ -283,7 +306,7 @@ class Autopilot:
         needs_pos = mode not in (FlightMode.LAND, FlightMode.ALTCTL, FlightMode.STABILIZED, FlightMode.MANUAL)
         if needs_pos and not c.est.pos_valid and c.armed:
             return CommandResult.denied(f"{mode.name} needs a position estimate")
-        if mode == FlightMode.OFFBOARD and not self._offboard_fresh():
+        if mode == FlightMode.OFFBOARD and not self.offboard_age_s() <= self.params["COM_OF_LOSS_T"]:
             return CommandResult.denied("Offboard denied: no setpoint received recently (stream setpoints first)")
         if mode == FlightMode.MISSION and not c.nav.items:
             return CommandResult.denied("Mission denied: no mission uploaded")
@@ -294,16 +317,13 @@ class Autopilot:
         if mode == FlightMode.FOLLOW_TARGET:
             self.follow.enter()
         if self.failsafe and mode != c.mode:
-            self.failsafe = ""
-        self._set_mode(mode)
+            self.failsafe = Failsafe.NONE
+        self.switch_mode(mode)
         return CommandResult.accepted()
-
-    def _offboard_fresh(self) -> bool:
-        return (self.wall.now_ns() - self._offboard_wall_ns) * 1e-9 <= self.params["COM_OF_LOSS_T"]
 
     def _offboard_apply(self) -> None:
         nav = self.core.nav
-        if self._offboard_kind == "att":
+        if self._offboard_kind == OffboardKind.ATTITUDE:
             nav.offboard_att = self._offboard_att
             nav.offboard_sp = None
         elif self._offboard_sp is not None:
@@ -339,7 +359,7 @@ class Autopilot:
             if kind == MissionKind.MISSION:
                 nav.items = list(items)
                 cur = next((i for i, it in enumerate(items) if it.current), 0)
-                nav.current, nav.reached, nav.finished, nav.phase = cur, [], False, "start"
+                nav.current, nav.reached, nav.finished, nav.phase = cur, [], False, MissionPhase.START
             elif kind == MissionKind.FENCE:
                 self.core.fence.set_items(items)
             else:
@@ -361,7 +381,7 @@ class Autopilot:
             nav = self.core.nav
             if not 0 <= seq < len(nav.items):
                 return CommandResult.denied(f"mission item {seq} does not exist ({len(nav.items)} items)")
-            nav.current, nav.phase, nav.finished = seq, "start", False
+            nav.current, nav.phase, nav.finished = seq, MissionPhase.START, False
             self._cache = None
             return CommandResult.accepted()
 
@@ -379,7 +399,7 @@ class Autopilot:
             return CommandResult.denied("offboard setpoint with NaN or infinite values")
         with self._lock:
             self._offboard_wall_ns = self.wall.now_ns()
-            self._offboard_sp, self._offboard_kind = sp, "sp"
+            self._offboard_sp, self._offboard_kind = sp, OffboardKind.SETPOINT
             if self.core.mode == FlightMode.OFFBOARD:
                 self._offboard_apply()
             return CommandResult.accepted()
@@ -392,7 +412,7 @@ class Autopilot:
             return CommandResult.denied("attitude target quaternion is not normalised")
         with self._lock:
             self._offboard_wall_ns = self.wall.now_ns()
-            self._offboard_att, self._offboard_kind = target, "att"
+            self._offboard_att, self._offboard_kind = target, OffboardKind.ATTITUDE
             if self.core.mode == FlightMode.OFFBOARD:
                 self._offboard_apply()
             return CommandResult.accepted()

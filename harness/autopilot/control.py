@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import math
 
-from harness.autopilot.api import Quat
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
+from harness.core.geo import Quat
 
 NAN = math.nan
 _isnan = math.isnan

@@ -16,15 +16,40 @@ to Land, which without a position is PX4's Descend (level, straight down at the 
 from __future__ import annotations
 
 import enum
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import msgspec
 
-from harness.autopilot.api import CommandResult, FlightMode, LandedState, Severity
+from harness.autopilot.api import CommandResult, Failsafe, FlightMode, LandedState, Severity
+from harness.autopilot.supervisor import Supervised
 from harness.fdm.frame import MOTOR_COUNT, Imu, SensorFrame
 
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
+
+class _ManualInput(Protocol):
+    def fresh(self) -> bool: ...
+
+
+class _Config(Protocol):
+    @property
+    def use_ground_truth(self) -> bool: ...
+
+
+class FailureHost(Supervised, Protocol):
+    """What the failure injector reads of, and does to, its autopilot (``harness.autopilot.Autopilot``)."""
+
+    @property
+    def config(self) -> _Config: ...
+
+    @property
+    def manual(self) -> _ManualInput: ...
+
+    def flies_attitude(self) -> bool:
+        """Whether OFFBOARD flies attitude targets (no position needed)."""
+        ...
+
+    def state_changed(self) -> None:
+        """Drop the cached state snapshot."""
+        ...
 
 
 class FailureUnit(enum.IntEnum):
@@ -94,7 +119,7 @@ _NEEDS_POSITION = frozenset(
 class FailureInjector:
     """The injected failures of one vehicle; called by its ``Autopilot`` under the autopilot's lock."""
 
-    def __init__(self, ap: Autopilot) -> None:
+    def __init__(self, ap: FailureHost) -> None:
         self.ap = ap
         self.active: dict[FailureUnit, FailureType] = {}
         self.motors_off: set[int] = set()
@@ -132,12 +157,12 @@ class FailureInjector:
             bat = self.ap.core.battery
             bat.consumed_mah = max(bat.consumed_mah, self.ap.params["BAT_CAPACITY"])
         self.rc_off = self.active.get(FailureUnit.SYSTEM_RC_SIGNAL) == FailureType.OFF
-        self.ap._cache = None
+        self.ap.state_changed()
         self._say(f"Failure injected: {u.name.lower()} {k.name.lower()}")
         return CommandResult.accepted()
 
     def _say(self, text: str) -> None:
-        self.ap._say(Severity.WARNING, text)
+        self.ap.say(Severity.WARNING, text)
 
     def off(self, unit: FailureUnit) -> bool:
         return self.active.get(unit) == FailureType.OFF
@@ -204,15 +229,15 @@ class FailureInjector:
             e.forget_gps_motion()
         if e.pos_valid and not ap.config.use_ground_truth and c.t_ns - e.last_gps_ns > timeout_ns:
             e.pos_valid = False
-            ap._say(Severity.CRITICAL, "No GPS: position estimate invalid")
+            ap.say(Severity.CRITICAL, "No GPS: position estimate invalid")
         if e.pos_valid or not c.armed or c.landed_state == LandedState.ON_GROUND:
             return
-        if c.mode not in _NEEDS_POSITION or (c.mode == FlightMode.OFFBOARD and ap._offboard_kind == "att"):
+        if c.mode not in _NEEDS_POSITION or (c.mode == FlightMode.OFFBOARD and ap.flies_attitude()):
             return  # (offboard attitude setpoints need no position)
         if c.mode == FlightMode.POSCTL and ap.params["COM_POSCTL_NAVL"] == 0 and ap.manual.fresh():
             target = FlightMode.ALTCTL
         else:
             target = FlightMode.LAND  # without a position: PX4's Descend
-        ap.failsafe = "navigation"
-        ap._say(Severity.CRITICAL, f"Failsafe: no position estimate, {target.name}")
-        ap._set_mode(target)
+        ap.failsafe = Failsafe.NAVIGATION
+        ap.say(Severity.CRITICAL, f"Failsafe: no position estimate, {target.name}")
+        ap.switch_mode(target)

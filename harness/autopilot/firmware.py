@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import enum
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 
 
 class Firmware(enum.Enum):

@@ -19,9 +19,10 @@ from harness.autopilot.control import (
 )
 from harness.autopilot.estimator import Estimator
 from harness.autopilot.geofence import Geofence
-from harness.autopilot.mathutil import G_M_S2, GeoRef
+from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.navigator import Navigator
 from harness.autopilot.params import Params
+from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
 
 _isnan = math.isnan

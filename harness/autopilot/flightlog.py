@@ -12,14 +12,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, BinaryIO
+from typing import BinaryIO
 
 from harness.autopilot.api import FlightMode, Severity
 from harness.autopilot.params import Params, ParamType
+from harness.autopilot.supervisor import Supervised
 from harness.autopilot.ulog import Topic, UlogWriter
-
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
 
 FAST_NS = 20_000_000
 MEDIUM_NS = 100_000_000
@@ -119,7 +117,7 @@ class FlightLog:
         if not self.closed:
             self._w.log(_LEVEL.get(severity, 6), max(t_ns, 0) // 1000, text)
 
-    def record(self, ap: Autopilot) -> None:
+    def record(self, ap: Supervised) -> None:
         """After a step (under the autopilot's lock): the samples that fall due at this sim time."""
         c = ap.core
         t = c.t_ns

@@ -13,12 +13,9 @@ before the first) it holds where it is.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from harness.autopilot.api import CommandResult
-
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
+from harness.autopilot.supervisor import Supervised
 
 TARGET_TIMEOUT_NS = 2_500_000_000
 MIN_SAFETY_ALT_M = 1.0
@@ -28,7 +25,7 @@ _MOVING_M_S = 0.5
 class FollowTarget:
     """The follow-target state of one vehicle; called under the autopilot's lock."""
 
-    def __init__(self, ap: Autopilot) -> None:
+    def __init__(self, ap: Supervised) -> None:
         self.ap = ap
         self.target: tuple[float, float, float] | None = None
         """Smoothed target position (local NED, m)."""

@@ -9,8 +9,7 @@ from collections.abc import Callable, Sequence
 
 from harness.autopilot.api import MavCmd, MissionItem
 from harness.autopilot.params import Params
-
-Vec3 = tuple[float, float, float]
+from harness.core.geo import Vec3
 
 
 def _inside_polygon(x: float, y: float, poly: Sequence[tuple[float, float]]) -> bool:

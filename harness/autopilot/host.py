@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import msgspec
 
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.fdm.frame import decode_frame
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
@@ -90,7 +90,7 @@ def serve(client: ChannelClient, autopilots: dict[int, Autopilot], stop: threadi
                     frame = decode_frame(msg.frame)
                 except (msgspec.DecodeError, msgspec.ValidationError) as exc:
                     raise SimulationError(f"{client.name}: bad sensor frame for vehicle {msg.vehicle}: {exc}") from None
-                out.append(EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), ap.packed_status()))
+                out.append(EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), p.pack_status(*ap.tick_status())))
                 ticks += 1
             elif isinstance(msg, p.Bye):
                 if out:

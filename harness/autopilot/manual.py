@@ -25,14 +25,25 @@ after sticks were used: in a stick mode, ``NAV_RCL_ACT`` (1 hold, 2 return, 3 la
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from harness.autopilot.api import AttitudeTarget, CommandResult, FlightMode, LandedState, Severity
+from harness.autopilot.api import AttitudeTarget, CommandResult, Failsafe, FlightMode, LandedState, Severity
 from harness.autopilot.control import NAN
 from harness.autopilot.mathutil import G_M_S2
+from harness.autopilot.supervisor import Supervised
 
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
+
+class _RcSignal(Protocol):
+    @property
+    def rc_off(self) -> bool: ...
+
+
+class ManualHost(Supervised, Protocol):
+    """What manual control reads of, and does to, its autopilot (``harness.autopilot.Autopilot``)."""
+
+    @property
+    def failures(self) -> _RcSignal: ...
+
 
 STICK_MODES = frozenset({FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED, FlightMode.MANUAL})
 _ATTITUDE_MODES = frozenset({FlightMode.STABILIZED, FlightMode.MANUAL})
@@ -67,7 +78,7 @@ def _euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float,
 class ManualControl:
     """The sticks of one vehicle and the stick modes; called under the autopilot's lock."""
 
-    def __init__(self, ap: Autopilot) -> None:
+    def __init__(self, ap: ManualHost) -> None:
         self.ap = ap
         self.x = self.y = self.r = 0.0
         self.z = 0.5
@@ -95,7 +106,7 @@ class ManualControl:
         self.last_ns = max(self.ap.core.t_ns, 0)
         if self.lost:
             self.lost = False
-            self.ap._say(Severity.INFO, "Manual control regained")
+            self.ap.say(Severity.INFO, "Manual control regained")
         return CommandResult.accepted()
 
     def fresh(self) -> bool:
@@ -197,7 +208,7 @@ class ManualControl:
         if self.last_ns is None or self.lost or self.fresh():
             return
         self.lost = True
-        ap._say(Severity.CRITICAL, "Manual control lost")
+        ap.say(Severity.CRITICAL, "Manual control lost")
         if not c.armed or c.landed_state == LandedState.ON_GROUND:
             return
         act = int(ap.params["NAV_RCL_ACT"])
@@ -211,13 +222,13 @@ class ManualControl:
         if mode not in STICK_MODES and (act == 0 or exempt_here):
             return
         if act == 6:
-            ap._disarm("Failsafe: manual control lost, disarming")
+            ap.cut_motors("Failsafe: manual control lost, disarming")
             return
         target = {2: FlightMode.RTL, 3: FlightMode.LAND, 5: FlightMode.LAND}.get(act, FlightMode.HOLD)
         if target == FlightMode.RTL and ap.home_ned is None:
             target = FlightMode.LAND
         if not c.est.pos_valid:
             target = FlightMode.LAND
-        ap.failsafe = "rc_loss"
-        ap._say(Severity.CRITICAL, f"Failsafe: manual control lost, {target.name}")
-        ap._set_mode(target)
+        ap.failsafe = Failsafe.RC_LOSS
+        ap.say(Severity.CRITICAL, f"Failsafe: manual control lost, {target.name}")
+        ap.switch_mode(target)

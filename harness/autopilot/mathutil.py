@@ -1,4 +1,5 @@
-"""Plain-float quaternion and geodesy helpers for the hot path (numpy on 3-vectors is ~1 µs per op).
+"""Plain-float quaternion helpers for the hot path (numpy on 3-vectors is ~1 µs per op); geodesy is in
+``harness.core.geo``.
 
 Quaternions are (w, x, y, z) tuples rotating body FRD to world NED.
 """
@@ -7,9 +8,8 @@ from __future__ import annotations
 
 import math
 
-from harness.autopilot.api import Quat, Vec3
+from harness.core.geo import Quat, Vec3
 
-EARTH_RADIUS_M = 6_371_000.0
 G_M_S2 = 9.80665
 
 
@@ -78,41 +78,3 @@ def rotate_inv(q: Quat, v: Vec3) -> Vec3:
 
 def wrap_pi(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-class GeoRef:
-    """Azimuthal equidistant projection around a reference point (as PX4's map projection)."""
-
-    __slots__ = ("alt_m", "cos_lat", "lat_rad", "lon_rad", "sin_lat")
-
-    def __init__(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> None:
-        self.lat_rad = math.radians(lat_deg)
-        self.lon_rad = math.radians(lon_deg)
-        self.sin_lat = math.sin(self.lat_rad)
-        self.cos_lat = math.cos(self.lat_rad)
-        self.alt_m = alt_amsl_m
-
-    def to_ned(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> Vec3:
-        lat = math.radians(lat_deg)
-        lon = math.radians(lon_deg)
-        sin_lat, cos_lat = math.sin(lat), math.cos(lat)
-        cos_d_lon = math.cos(lon - self.lon_rad)
-        arg = self.sin_lat * sin_lat + self.cos_lat * cos_lat * cos_d_lon
-        arg = -1.0 if arg < -1.0 else (1.0 if arg > 1.0 else arg)
-        c = math.acos(arg)
-        k = c / math.sin(c) if abs(c) > 1e-12 else 1.0
-        north = k * (self.cos_lat * sin_lat - self.sin_lat * cos_lat * cos_d_lon) * EARTH_RADIUS_M
-        east = k * cos_lat * math.sin(lon - self.lon_rad) * EARTH_RADIUS_M
-        return (north, east, self.alt_m - alt_amsl_m)
-
-    def to_geo(self, n: float, e: float, d: float) -> tuple[float, float, float]:
-        x = n / EARTH_RADIUS_M
-        y = e / EARTH_RADIUS_M
-        c = math.sqrt(x * x + y * y)
-        if c > 1e-12:
-            sin_c, cos_c = math.sin(c), math.cos(c)
-            lat = math.asin(cos_c * self.sin_lat + x * sin_c * self.cos_lat / c)
-            lon = self.lon_rad + math.atan2(y * sin_c, c * self.cos_lat * cos_c - x * self.sin_lat * sin_c)
-        else:
-            lat, lon = self.lat_rad, self.lon_rad
-        return (math.degrees(lat), math.degrees(lon), self.alt_m - d)

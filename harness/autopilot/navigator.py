@@ -7,6 +7,7 @@ control step. It does not arm, disarm or pick modes: it reports what happened (`
 
 from __future__ import annotations
 
+import enum
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,8 +26,7 @@ from harness.autopilot.control import NAN, TrajectorySetpoint
 from harness.autopilot.estimator import Estimator
 from harness.autopilot.params import Params
 from harness.autopilot.trajectory import PointTracker, slew_yaw
-
-Vec3 = tuple[float, float, float]
+from harness.core.geo import Vec3
 
 
 @dataclass(slots=True)
@@ -37,6 +37,32 @@ class Orbit:
     radius_m: float
     velocity_m_s: float
     theta: float = 0.0
+
+
+class MissionPhase(enum.Enum):
+    """Where the mission stands on its current item."""
+
+    NONE = enum.auto()
+    START = enum.auto()
+    """The item is about to begin (its target is set on the next step)."""
+    PRE_TAKEOFF = enum.auto()
+    """Climbing before the first item, which is not a takeoff."""
+    TAKEOFF = enum.auto()
+    GOTO = enum.auto()
+    WAIT = enum.auto()
+    """At the item, holding for its time (or a NAV_DELAY)."""
+    LAND = enum.auto()
+    RTL = enum.auto()
+    """A NAV_RETURN_TO_LAUNCH item: the return's own phase is ``rtl_phase``."""
+
+
+class RtlPhase(enum.Enum):
+    """The return: climb to the return altitude, fly home, land."""
+
+    NONE = enum.auto()
+    CLIMB = enum.auto()
+    RETURN = enum.auto()
+    LAND = enum.auto()
 
 
 class Navigator:
@@ -52,7 +78,8 @@ class Navigator:
         self.yaw_sp = 0.0
         self.yaw_target: float | None = None
         self.cruise_m_s = params["MPC_XY_CRUISE"]
-        self.phase = ""
+        self.phase = MissionPhase.NONE
+        self.rtl_phase = RtlPhase.NONE
         self.landing = False
         """The active mode is descending to land (land detector may declare touchdown)."""
         self.wants_climb = False
@@ -125,7 +152,8 @@ class Navigator:
         self.mode = mode
         self.landing = False
         self.wants_climb = False
-        self.phase = ""
+        self.phase = MissionPhase.NONE
+        self.rtl_phase = RtlPhase.NONE
         self.timer_s = 0.0
         self.yaw_sp = self.est.yaw
         self.yaw_target = None
@@ -148,7 +176,7 @@ class Navigator:
                 self.current = 0
                 self.reached = []
                 self.finished = False
-            self.phase = "start"
+            self.phase = MissionPhase.START
         elif mode == FlightMode.OFFBOARD:
             self._offboard_pos = None
 
@@ -221,30 +249,30 @@ class Navigator:
         e = self.est
         dist = math.hypot(e.pn - self.home[0], e.pe - self.home[1])
         if dist < p["RTL_MIN_DIST"]:
-            self.phase = "return"
+            self.rtl_phase = RtlPhase.RETURN
             self.target = (self.home[0], self.home[1], e.pd)
         else:
-            self.phase = "climb"
+            self.rtl_phase = RtlPhase.CLIMB
             alt = max(self.home[2] - e.pd, p["RTL_RETURN_ALT"])
             self.target = (e.pn, e.pe, self.home[2] - alt)
         self.landing = False
 
     def _rtl(self, dt: float, landed: bool) -> bool:
         """One RTL step; True once it has landed."""
-        if self.phase == "climb":
+        if self.rtl_phase == RtlPhase.CLIMB:
             self._track(self.target, dt)
             if abs(self.est.pd - self.target[2]) < self.params["NAV_MC_ALT_RAD"]:
-                self.phase = "return"
+                self.rtl_phase = RtlPhase.RETURN
                 self.target = (self.home[0], self.home[1], self.target[2])
                 self.yaw_target = math.atan2(self.home[1] - self.est.pe, self.home[0] - self.est.pn)
-        elif self.phase == "return":
+        elif self.rtl_phase == RtlPhase.RETURN:
             self._track(self.target, dt)
             e = self.est
             if math.hypot(e.pn - self.target[0], e.pe - self.target[1]) < 0.5 and math.hypot(e.vn, e.ve) < 0.5:
-                self.phase = "land"
+                self.rtl_phase = RtlPhase.LAND
                 self.landing = True
                 self.yaw_target = None
-        elif self.phase == "land":
+        elif self.rtl_phase == RtlPhase.LAND:
             self._land(dt)
             return landed
         return False
@@ -321,7 +349,7 @@ class Navigator:
             return
         it = self.items[self.current]
         cmd = it.command
-        if self.phase == "start":
+        if self.phase == MissionPhase.START:
             self._start_tracker()
             tgt = self.item_target(it)
             if cmd == MavCmd.NAV_TAKEOFF or (landed and cmd not in (MavCmd.NAV_LAND, MavCmd.NAV_RETURN_TO_LAUNCH)):
@@ -331,44 +359,44 @@ class Navigator:
                     else (self.home[2] - tgt[2])
                 )
                 self.target = (e.pn, e.pe, self.home[2] - alt)
-                self.phase = "takeoff" if cmd == MavCmd.NAV_TAKEOFF else "pre_takeoff"
+                self.phase = MissionPhase.TAKEOFF if cmd == MavCmd.NAV_TAKEOFF else MissionPhase.PRE_TAKEOFF
                 self.wants_climb = landed
             elif cmd == MavCmd.NAV_RETURN_TO_LAUNCH:
                 self._rtl_start()
-                self.phase = "rtl_" + self.phase
+                self.phase = MissionPhase.RTL
             elif cmd == MavCmd.NAV_DELAY:
                 self.target = self.pos()
                 self.timer_s = max(float(it.param1), 0.0)
-                self.phase = "wait"
+                self.phase = MissionPhase.WAIT
             else:
                 self.target = (tgt[0], tgt[1], e.pd if cmd == MavCmd.NAV_LAND else tgt[2])
-                self.phase = "goto"
+                self.phase = MissionPhase.GOTO
                 d = math.hypot(tgt[0] - e.pn, tgt[1] - e.pe)
                 if d > 2.0:
                     self.yaw_target = math.atan2(tgt[1] - e.pe, tgt[0] - e.pn)
         ph = self.phase
-        if ph in ("takeoff", "pre_takeoff"):
+        if ph in (MissionPhase.TAKEOFF, MissionPhase.PRE_TAKEOFF):
             self._track(self.target, dt)
             if self.takeoff_reached():
                 self.wants_climb = False
-                if ph == "takeoff":
+                if ph == MissionPhase.TAKEOFF:
                     self._reach()
-                self.phase = "start"
-        elif ph == "goto":
+                self.phase = MissionPhase.START
+        elif ph == MissionPhase.GOTO:
             self._track(self.target, dt)
             rad = float(it.param2) if cmd == MavCmd.NAV_WAYPOINT and it.param2 > 0 else p["NAV_ACC_RAD"]
             dh = math.hypot(self.target[0] - e.pn, self.target[1] - e.pe)
             if dh < rad and abs(self.target[2] - e.pd) < p["NAV_MC_ALT_RAD"] and self._setpoint_arrived():
                 if cmd == MavCmd.NAV_LAND:
-                    self.phase = "land"
+                    self.phase = MissionPhase.LAND
                     self.landing = True
                 else:
                     hold = it.param1 if cmd in (MavCmd.NAV_WAYPOINT, MavCmd.NAV_LOITER_TIME) else 0.0
                     self.timer_s = max(float(hold), 0.0)
-                    self.phase = "wait"
+                    self.phase = MissionPhase.WAIT
                     self.new_reached.append(it.seq)
                     self.reached.append(it.seq)
-        elif ph == "wait":
+        elif ph == MissionPhase.WAIT:
             self._track(self.target, dt)
             self.timer_s -= dt
             if self.timer_s <= 0.0:
@@ -376,16 +404,13 @@ class Navigator:
                     self._reach()
                 else:
                     self._advance()
-        elif ph == "land":
+        elif ph == MissionPhase.LAND:
             self._land(dt)
             if landed:
                 self.landing = False
                 self._reach()
-        elif ph.startswith("rtl_"):
-            self.phase = ph[4:]
+        elif ph == MissionPhase.RTL:
             done = self._rtl(dt, landed)
-            if self.phase != "":
-                self.phase = "rtl_" + self.phase
             if done:
                 self.landing = False
                 self._reach()
@@ -403,7 +428,7 @@ class Navigator:
 
     def _advance(self) -> None:
         self.current += 1
-        self.phase = "start"
+        self.phase = MissionPhase.START
         self.yaw_target = None
 
 

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from harness.autopilot.api import CommandResult
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 
 
 class ParamType(enum.IntEnum):

@@ -3,7 +3,7 @@
 Parameters a ground station sets are kept in ``<run dir>/params/vehicle-<i>.json`` and restored when the
 vehicle starts again in the same run directory.
 
-With ``LaunchPlan(autopilots="process")``, ``harness run`` starts one of these for all vehicles (one
+With ``LaunchPlan(autopilots=AutopilotPlacement.PROCESS)``, ``harness run`` starts one of these for all vehicles (one
 process for several vehicles is cheaper than one per vehicle, ``docs/autopilot.md``). Each vehicle gets a
 MAVLink server on API port ``api_port_base + i`` and the GCS port (one ``MavlinkHub`` thread serves them
 all) and writes ``vehicle-<i>.tlog`` in the run directory: every MAVLink frame it sent or received, each preceded by its 8-byte big-endian Unix time in
@@ -33,9 +33,9 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.runlocal import RunLocalPeers
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
-from harness.errors import HarnessError
-from harness.secrets import read_signing_key
-from harness.simclock.clock import real_time_ns
+from harness.core.clock import WALL, Clock
+from harness.core.errors import HarnessError
+from harness.core.secrets import read_signing_key
 
 log = logging.getLogger(__name__)
 
@@ -45,8 +45,9 @@ _STAMP = struct.Struct(">Q")
 class TlogWriter:
     """Appends MAVLink frames to a ``.tlog``; flushed every ``flush_every`` frames and on close."""
 
-    def __init__(self, path: Path, flush_every: int = 50) -> None:
+    def __init__(self, path: Path, flush_every: int = 50, clock: Clock = WALL) -> None:
         self._f: BinaryIO = path.open("ab")
+        self._clock = clock
         self._n = 0
         self._flush_every = flush_every
         self._lock = threading.Lock()
@@ -56,7 +57,7 @@ class TlogWriter:
         with self._lock:
             if self.closed:
                 return
-            self._f.write(_STAMP.pack(real_time_ns() // 1000) + frame)
+            self._f.write(_STAMP.pack(self._clock.unix_ns() // 1000) + frame)
             self._n += 1
             if self._n % self._flush_every == 0:
                 self._f.flush()
@@ -92,21 +93,23 @@ def attach_mavlink(
     trust_unsigned: Callable[[bool, tuple[str, int]], bool] | None = None,
 ) -> _Attached:
     """The MAVLink server (and tlog, stored parameters) of ``ap``, served by ``hub`` (or a thread of its own),
-    presenting ``firmware``'s personality; with ``signing``, unsigned frames are obeyed only from peers
-    ``trust_unsigned`` accepts (the run's own processes, ``runlocal.py``)."""
+    presenting ``firmware``'s personality, on the hub's wall clock; with ``signing``, unsigned frames are
+    obeyed only from peers ``trust_unsigned`` accepts (the run's own processes, ``runlocal.py``)."""
+    clock = hub.clock if hub is not None else WALL
     tlog = ulog = None
     if run_dir is not None:
-        tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog")
+        tlog = TlogWriter(run_dir / f"vehicle-{ap.vehicle}.tlog", clock=clock)
         for refused in persist_params(ap.params, run_dir, ap.vehicle):
             log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
         ulog = ap.flight_log = FlightLog(
-            run_dir / f"vehicle-{ap.vehicle}.ulg", ap.params, ap.vehicle, real_time_ns() // 1000
+            run_dir / f"vehicle-{ap.vehicle}.ulg", ap.params, ap.vehicle, clock.unix_ns() // 1000
         )
     server = MavlinkServer(
         ap,
         ap.vehicle,
         ports,
         signing,
+        clock=clock,
         tap=tlog.write if tlog else None,
         firmware=firmware,
         trust_unsigned=trust_unsigned,

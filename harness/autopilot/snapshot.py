@@ -1,19 +1,33 @@
-"""Building the frozen ``VehicleState`` snapshot from the live autopilot (called under its lock)."""
+"""Building the frozen ``VehicleState`` snapshot from the live flight core and the commander's state (called
+under the autopilot's lock)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from harness.autopilot.api import FlightMode, GpsInfo, Health, LandedState, MissionProgress, VehicleState
-from harness.autopilot.failures import FailureUnit
+from harness.autopilot.api import (
+    Failsafe,
+    FlightMode,
+    GeoPoint,
+    GpsInfo,
+    Health,
+    LandedState,
+    MissionProgress,
+    VehicleState,
+)
+from harness.autopilot.failures import FailureInjector, FailureUnit
+from harness.autopilot.flight import FlightCore
 from harness.autopilot.mathutil import quat_to_euler
-
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
+from harness.core.geo import Vec3
 
 
-def build_state(ap: Autopilot) -> VehicleState:
-    c = ap.core
+def build_state(
+    c: FlightCore,
+    vehicle: int,
+    home: GeoPoint | None,
+    home_ned: Vec3 | None,
+    failsafe: Failsafe,
+    preflight_ok: bool,
+    failures: FailureInjector,
+) -> VehicleState:
     e = c.est
     nav = c.nav
     t = max(c.t_ns, 0)
@@ -27,7 +41,7 @@ def build_state(ap: Autopilot) -> VehicleState:
     )
     fresh = 1_000_000_000
     imu_ok = c.t_ns >= 0 and t - e.last_imu_ns < fresh
-    failed = ap.failures.off
+    failed = failures.off
     health = Health(
         gyro_ok=imu_ok and not failed(FailureUnit.SENSOR_GYRO),
         accel_ok=imu_ok and not failed(FailureUnit.SENSOR_ACCEL),
@@ -36,14 +50,14 @@ def build_state(ap: Autopilot) -> VehicleState:
         gps_ok=e.global_position_ok(c.t_ns),
         gps_fix_ok=e.gps_fix_ok() and e.pos_valid,
         local_position_ok=e.pos_valid,
-        home_ok=ap.home is not None,
-        preflight_ok=ap.arming_check() == "",
+        home_ok=home is not None,
+        preflight_ok=preflight_ok,
     )
-    home_pd = ap.home_ned[2] if ap.home_ned is not None else 0.0
+    home_pd = home_ned[2] if home_ned is not None else 0.0
     mode = c.mode
     return VehicleState(
         t_ns=t,
-        vehicle=ap.vehicle,
+        vehicle=vehicle,
         armed=c.armed,
         mode=mode,
         landed_state=c.landed_state if c.armed else LandedState.ON_GROUND,
@@ -59,10 +73,10 @@ def build_state(ap: Autopilot) -> VehicleState:
         yaw_rad=yaw,
         rates_body_rad_s=e.rates,
         accel_body_m_s2=e.accel_body,
-        mag_body_gauss=ap.failures.last_mag_gauss,
-        baro_pa=ap.failures.last_baro_pa,
-        home=ap.home,
-        home_ned_m=ap.home_ned,
+        mag_body_gauss=failures.last_mag_gauss,
+        baro_pa=failures.last_baro_pa,
+        home=home,
+        home_ned_m=home_ned,
         battery=c.battery.state(),
         gps=gps,
         health=health,
@@ -77,5 +91,5 @@ def build_state(ap: Autopilot) -> VehicleState:
         motors=c.motors,
         throttle=c.collective,
         max_speed_m_s=nav.cruise_m_s,
-        failsafe=ap.failsafe,
+        failsafe=failsafe,
     )

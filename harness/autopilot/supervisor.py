@@ -1,20 +1,55 @@
 """The commander's periodic checks: arming checks, auto-disarm, mode completion and failsafes.
 
-Functions over an ``Autopilot``, called under its lock (``supervise`` at ``AutopilotConfig.supervise_hz``
-of sim time, ``arming_check`` on every arm request and health report).
+:class:`Supervisor` holds the checks' own state (since when the vehicle is on the ground, whether it has
+flown, whether the fence is breached) and acts on its autopilot only through :class:`Supervised`, called
+under the autopilot's lock (``Supervisor.check`` at ``AutopilotConfig.supervise_hz`` of sim time,
+``arming_check`` on every arm request and health report).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from harness.autopilot.api import FlightMode, LandedState, Severity
+from harness.autopilot.api import Failsafe, FlightMode, LandedState, Severity
+from harness.autopilot.flight import FlightCore
+from harness.autopilot.params import Params
+from harness.core.geo import Vec3
 
-if TYPE_CHECKING:
-    from harness.autopilot.autopilot import Autopilot
+
+class Supervised(Protocol):
+    """What the supervisor reads of, and may do to, its autopilot (``harness.autopilot.Autopilot``)."""
+
+    core: FlightCore
+    params: Params
+    home_ned: Vec3 | None
+    failsafe: Failsafe
+
+    def say(self, severity: Severity, text: str) -> None:
+        """Queue a status text."""
+        ...
+
+    def switch_mode(self, mode: FlightMode) -> None:
+        """Enter ``mode`` without the checks of a commanded mode change."""
+        ...
+
+    def cut_motors(self, why: str) -> None:
+        """Disarm now and say why."""
+        ...
+
+    def offboard_age_s(self) -> float:
+        """Wall-clock seconds since the last offboard setpoint."""
+        ...
+
+    def offboard_climbing(self) -> bool: ...
+
+    def to_local(self, lat_deg: float, lon_deg: float) -> tuple[float, float]: ...
+
+    def manual_refusal(self, mode: FlightMode) -> str:
+        """Why ``mode`` may not be flown without its manual control input ('' when it may)."""
+        ...
 
 
-def arming_check(ap: Autopilot) -> str:
+def arming_check(ap: Supervised) -> str:
     """'' when the vehicle may arm, else the first reason it may not."""
     c = ap.core
     e = c.est
@@ -34,76 +69,101 @@ def arming_check(ap: Autopilot) -> str:
             return "position estimate not converged"
     if c.battery.remaining < p["BAT_LOW_THR"]:
         return f"battery low ({c.battery.remaining:.0%})"
-    refusal = ap.manual.refuse(c.mode)
-    if refusal is not None:
-        return refusal.reason
-    if c.mode == FlightMode.OFFBOARD and not ap._offboard_fresh():
+    refusal = ap.manual_refusal(c.mode)
+    if refusal:
+        return refusal
+    if c.mode == FlightMode.OFFBOARD and not ap.offboard_age_s() <= p["COM_OF_LOSS_T"]:
         return "offboard mode without a recent setpoint"
     if c.mode == FlightMode.MISSION and not c.nav.items:
         return "mission mode without a mission"
     return ""
 
 
-def supervise(ap: Autopilot) -> None:
+class Supervisor:
     """Auto-disarm, end of takeoff and mission, battery, offboard-loss and geofence failsafes."""
-    c = ap.core
-    p = ap.params
-    t = c.t_ns
-    nav = c.nav
-    in_air = c.armed and c.landed_state != LandedState.ON_GROUND
-    # auto-disarm: after touchdown, and when armed but never taken off
-    if c.armed and c.landed_state == LandedState.ON_GROUND:
-        if ap._landed_since_ns is None:
-            ap._landed_since_ns = t
-        waited = (t - ap._landed_since_ns) * 1e-9
-        limit = p["COM_DISARM_LAND"] if ap._was_airborne else p["COM_DISARM_PRFLT"]
-        if limit > 0 and waited > limit and not nav.wants_climb and not ap._offboard_climbing():
-            ap._disarm("Disarmed after landing" if ap._was_airborne else "Disarmed: no takeoff")
+
+    __slots__ = ("fence_breached", "landed_since_ns", "was_airborne")
+
+    def __init__(self) -> None:
+        self.landed_since_ns: int | None = None
+        self.was_airborne = False
+        self.fence_breached = False
+
+    def reset(self) -> None:
+        """Forget the flight: on arming and disarming."""
+        self.landed_since_ns = None
+        self.was_airborne = False
+
+    def check(self, ap: Supervised) -> None:
+        c = ap.core
+        p = ap.params
+        t = c.t_ns
+        nav = c.nav
+        in_air = c.armed and c.landed_state != LandedState.ON_GROUND
+        # auto-disarm: after touchdown, and when armed but never taken off
+        if c.armed and c.landed_state == LandedState.ON_GROUND:
+            if self.landed_since_ns is None:
+                self.landed_since_ns = t
+            waited = (t - self.landed_since_ns) * 1e-9
+            limit = p["COM_DISARM_LAND"] if self.was_airborne else p["COM_DISARM_PRFLT"]
+            if limit > 0 and waited > limit and not nav.wants_climb and not ap.offboard_climbing():
+                ap.cut_motors("Disarmed after landing" if self.was_airborne else "Disarmed: no takeoff")
+                return
+        else:
+            self.landed_since_ns = None
+            if in_air:
+                self.was_airborne = True
+        if c.mode == FlightMode.TAKEOFF and in_air and nav.takeoff_reached():
+            ap.say(Severity.INFO, "Takeoff complete")
+            ap.switch_mode(FlightMode.HOLD)
+        if c.mode == FlightMode.MISSION and nav.mission_done:
+            nav.mission_done = False
+            ap.say(Severity.INFO, "Mission finished")
+            if in_air and not nav.landing:
+                ap.switch_mode(FlightMode.HOLD)
+        if not in_air:
             return
-    else:
-        ap._landed_since_ns = None
-        if in_air:
-            ap._was_airborne = True
-    if c.mode == FlightMode.TAKEOFF and in_air and nav.takeoff_reached():
-        ap._say(Severity.INFO, "Takeoff complete")
-        ap._set_mode(FlightMode.HOLD)
-    if c.mode == FlightMode.MISSION and nav.mission_done:
-        nav.mission_done = False
-        ap._say(Severity.INFO, "Mission finished")
-        if in_air and not nav.landing:
-            ap._set_mode(FlightMode.HOLD)
-    if not in_air:
-        return
-    rem = c.battery.remaining
-    if rem < p["BAT_CRIT_THR"] and ap.failsafe != "battery_critical":
-        ap.failsafe = "battery_critical"
-        ap._say(Severity.CRITICAL, f"Battery critical ({rem:.0%}): landing")
-        ap._set_mode(FlightMode.LAND)
-    elif rem < p["BAT_LOW_THR"] and ap.failsafe not in ("battery", "battery_critical"):
-        ap.failsafe = "battery"
-        act = int(p["COM_LOW_BAT_ACT"])
-        ap._say(Severity.WARNING, f"Battery low ({rem:.0%})" + (": returning" if act == 3 else ""))
-        if act == 3 and ap.home_ned is not None:
-            ap._set_mode(FlightMode.RTL)
-        elif act in (2, 3):
-            ap._set_mode(FlightMode.LAND)
-    if c.mode == FlightMode.OFFBOARD:
-        lost_s = (ap.wall.now_ns() - ap._offboard_wall_ns) * 1e-9
-        if lost_s > p["COM_OF_LOSS_T"]:
-            ap.failsafe = "offboard_loss"
-            act = int(p["COM_OBL_RC_ACT"])
-            target = {3: FlightMode.RTL, 4: FlightMode.LAND}.get(act, FlightMode.HOLD)
-            ap._say(Severity.WARNING, f"Offboard setpoints lost for {lost_s:.1f} s: {target.name}")
-            ap._set_mode(target)
-    if ap.home_ned is not None:
+        self._battery(ap)
+        if c.mode == FlightMode.OFFBOARD:
+            lost_s = ap.offboard_age_s()
+            if lost_s > p["COM_OF_LOSS_T"]:
+                ap.failsafe = Failsafe.OFFBOARD_LOSS
+                act = int(p["COM_OBL_RC_ACT"])
+                target = {3: FlightMode.RTL, 4: FlightMode.LAND}.get(act, FlightMode.HOLD)
+                ap.say(Severity.WARNING, f"Offboard setpoints lost for {lost_s:.1f} s: {target.name}")
+                ap.switch_mode(target)
+        self._fence(ap)
+
+    @staticmethod
+    def _battery(ap: Supervised) -> None:
+        c = ap.core
+        p = ap.params
+        rem = c.battery.remaining
+        if rem < p["BAT_CRIT_THR"] and ap.failsafe != Failsafe.BATTERY_CRITICAL:
+            ap.failsafe = Failsafe.BATTERY_CRITICAL
+            ap.say(Severity.CRITICAL, f"Battery critical ({rem:.0%}): landing")
+            ap.switch_mode(FlightMode.LAND)
+        elif rem < p["BAT_LOW_THR"] and ap.failsafe not in (Failsafe.BATTERY, Failsafe.BATTERY_CRITICAL):
+            ap.failsafe = Failsafe.BATTERY
+            act = int(p["COM_LOW_BAT_ACT"])
+            ap.say(Severity.WARNING, f"Battery low ({rem:.0%})" + (": returning" if act == 3 else ""))
+            if act == 3 and ap.home_ned is not None:
+                ap.switch_mode(FlightMode.RTL)
+            elif act in (2, 3):
+                ap.switch_mode(FlightMode.LAND)
+
+    def _fence(self, ap: Supervised) -> None:
+        if ap.home_ned is None:
+            return
+        c = ap.core
         est = c.est
-        breach = c.fence.breach((est.pn, est.pe, est.pd), ap.home_ned, ap._to_local)
-        if breach and not ap._fence_breached:
-            ap._fence_breached = True
-            act = int(p["GF_ACTION"])
-            ap._say(Severity.CRITICAL, f"Geofence breached: {breach}")
+        breach = c.fence.breach((est.pn, est.pe, est.pd), ap.home_ned, ap.to_local)
+        if breach and not self.fence_breached:
+            self.fence_breached = True
+            act = int(ap.params["GF_ACTION"])
+            ap.say(Severity.CRITICAL, f"Geofence breached: {breach}")
             if act >= 2 and c.mode not in (FlightMode.RTL, FlightMode.LAND):
-                ap.failsafe = "geofence"
-                ap._set_mode({2: FlightMode.HOLD, 3: FlightMode.RTL}.get(act, FlightMode.LAND))
+                ap.failsafe = Failsafe.GEOFENCE
+                ap.switch_mode({2: FlightMode.HOLD, 3: FlightMode.RTL}.get(act, FlightMode.LAND))
         elif not breach:
-            ap._fence_breached = False
+            self.fence_breached = False

@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from harness.errors import ScenarioError
-from harness.simclock.clock import NS_PER_S
+from harness.core.clock import NS_PER_S
+from harness.core.errors import ScenarioError
 from harness.wire.transport import parse_address
 
 

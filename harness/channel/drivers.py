@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.channel import Channel
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep
+from harness.core.clock import NS_PER_S, real_monotonic_ns, real_sleep
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
 

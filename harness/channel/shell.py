@@ -32,8 +32,8 @@ from harness.channel.events import (
 )
 from harness.channel.machine import TickMachine
 from harness.channel.watchdog import JOIN, Watchdog
-from harness.errors import SimulationError
-from harness.simclock.clock import NS_PER_S, Clock, real_monotonic_ns, real_time_ns
+from harness.core.clock import NS_PER_S, WALL, Clock, real_monotonic_ns, real_time_ns
+from harness.core.errors import SimulationError
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient
 from harness.wire.transport import Address, accept_tuned, connect, listen, parse_address
@@ -41,13 +41,6 @@ from harness.wire.transport import Address, accept_tuned, connect, listen, parse
 log = logging.getLogger(__name__)
 
 LocalStep = Callable[[p.BeginTickAC], p.EndTickAC]
-
-
-class _MonotonicClock:
-    """The wall clock the watchdog runs on unless a test injects another."""
-
-    def now_ns(self) -> int:
-        return real_monotonic_ns()
 
 
 @dataclass(eq=False)
@@ -78,7 +71,7 @@ class Channel:
         self.trace: list[tuple[int, str, int, str]] = []
         self.failure: str | None = None
         self.address = ""
-        self._clock: Clock = clock or _MonotonicClock()
+        self._clock: Clock = clock if clock is not None else WALL  # a test injects a ManualClock
         self._watchdog = Watchdog(self._clock)
         self.machine = TickMachine(
             self._watchdog,

@@ -1,16 +1,16 @@
 """The channel's watchdog: a deadline per awaited peer, read from an injected clock.
 
 The tick machine says *whom* it waits for and for how long (``watch``); the watchdog turns that into a
-deadline on its :class:`~harness.simclock.clock.Clock`, tells the shell how long it may block
+deadline on its :class:`~harness.core.clock.Clock`, tells the shell how long it may block
 (``timeout_s``) and which waits ran out (``expired``). A channel runs it on the wall clock; tests run it
-on a :class:`~harness.simclock.clock.ManualClock` and move time by hand.
+on a :class:`~harness.core.clock.ManualClock` and move time by hand.
 """
 
 from __future__ import annotations
 
 from typing import Final
 
-from harness.simclock.clock import NS_PER_S, Clock
+from harness.core.clock import NS_PER_S, Clock
 
 JOIN: Final = -1
 """The key of the wait for autopilots of vehicles that physics simulates but nobody holds yet."""

@@ -12,10 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.errors import ScenarioError
-
-WGS84_A_M = 6378137.0
-WGS84_E2 = 6.69437999014e-3
+from harness.core.errors import ScenarioError
+from harness.core.geo import WGS84_A_M, WGS84_E2
 
 
 @dataclass(frozen=True)

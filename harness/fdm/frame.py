@@ -14,9 +14,7 @@ from __future__ import annotations
 
 import msgspec
 
-Vec3 = tuple[float, float, float]
-Quat = tuple[float, float, float, float]
-"""Quaternion (w, x, y, z), rotating body FRD to world NED."""
+from harness.core.geo import Quat, Vec3
 
 
 class Imu(msgspec.Struct, array_like=True, frozen=True):

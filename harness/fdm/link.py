@@ -1,8 +1,8 @@
 """The vehicle link: how physics exchanges one tick with the flight stacks of its vehicles.
 
 ``VehicleLink.exchange(t_ns, tick, frames)`` hands every vehicle its sensor frame for the tick and
-returns the motor commands each answered with. The first implementation, :class:`NativeLink`, is the
-paper's BEGIN-TICK-AC / END-TICK-AC through the root channel to our own autopilot.
+returns the motor commands each answered with. The first implementation, ``harness.run.link.NativeLink``, is
+the paper's BEGIN-TICK-AC / END-TICK-AC through the root channel to our own autopilot.
 
 The same seam fits real flight stacks, which is how real ArduPilot or PX4 binaries could fly in this
 physics (not implemented yet; the mapping is fixed here so nothing else has to change):
@@ -23,11 +23,10 @@ network stay as they are.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Protocol
 
-from harness.channel import Channel
-from harness.fdm.frame import SensorFrame, encode_frame
+from harness.fdm.frame import SensorFrame
 from harness.wire import protocol as p
 
 Motors = tuple[float, ...]
@@ -39,44 +38,3 @@ class VehicleLink(Protocol):
         ...
 
     def close(self) -> None: ...
-
-
-class LocalFlightStack(Protocol):
-    """A flight stack stepped inside the physics process (``harness.autopilot.Autopilot``)."""
-
-    def step(self, frame: SensorFrame) -> tuple[float, float, float, float]: ...
-    def packed_status(self) -> int: ...
-
-
-class NativeLink:
-    """Our autopilots through the root channel (which also runs the missions' and network's phases).
-
-    Autopilots in this process (``local``) are stepped by the channel in the tick's phase 0 with the
-    frame object itself; only autopilots in other processes get it encoded in their BEGIN-TICK-AC.
-    """
-
-    def __init__(self, channel: Channel, local: Mapping[int, LocalFlightStack] | None = None) -> None:
-        self.channel = channel
-        self._local = dict(local or {})
-        self._frames: dict[int, SensorFrame] = {}
-        if self._local:
-            channel.attach_local_autopilots(self._local, self._step_local)
-
-    def _step_local(self, m: p.BeginTickAC) -> p.EndTickAC:
-        stack = self._local[m.vehicle]
-        return p.EndTickAC(m.t_ns, m.vehicle, stack.step(self._frames[m.vehicle]), stack.packed_status())
-
-    def exchange(self, t_ns: int, tick: int, frames: Sequence[SensorFrame]) -> list[p.EndTickAC]:
-        n = len(frames)
-        local = self._local
-        msgs = []
-        for f in frames:
-            if f.vehicle in local:
-                self._frames[f.vehicle] = f
-                msgs.append(p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, b""))
-            else:
-                msgs.append(p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, encode_frame(f)))
-        return self.channel.step(msgs)
-
-    def close(self) -> None:
-        self.channel.close("end of run")

@@ -16,13 +16,12 @@ from dataclasses import dataclass, field
 import jsbsim
 import numpy as np
 
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
+from harness.core.geo import Vec3
 from harness.fdm.environment import TURBULENCE_LEVELS, Turbulence, WindConfig, WorldOrigin
 from harness.fdm.frame import MOTOR_COUNT, SensorFrame, Truth
 from harness.fdm.params import DEFAULT_QUAD, FT_PER_M, G_M_S2, M_PER_FT, N_PER_LBF, QuadParams, models_root
 from harness.fdm.sensors import SensorConfig, SensorModel
-
-Vec3 = tuple[float, float, float]
 
 __all__ = ["TURBULENCE_LEVELS", "Physics", "PhysicsConfig", "SensorConfig", "WindConfig", "WorldOrigin"]
 

@@ -7,21 +7,32 @@ Pure per-vehicle state fed with ground truth every tick; all randomness from the
 from __future__ import annotations
 
 import collections
+import enum
 import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from harness.errors import ScenarioError
-from harness.fdm.frame import Baro, Gps, Imu, Mag, Vec3
+from harness.core.errors import ScenarioError
+from harness.core.geo import EARTH_RADIUS_M, Quat, Vec3
+from harness.fdm.frame import Baro, Gps, Imu, Mag
 
-Quat = tuple[float, float, float, float]
+
+def gps_profile_names() -> list[str]:
+    return sorted(p.value for p in GpsProfile)
 
 
-GPS_PROFILES: dict[str, dict[str, float]] = {
-    "px4-sitl": {"gps_noise_m": 0.026, "gps_alt_noise_m": 0.038, "gps_error_tau_s": 2.4},
-    "standalone": {"gps_noise_m": 0.3, "gps_alt_noise_m": 0.5, "gps_error_tau_s": 20.0},
+class GpsProfile(enum.StrEnum):
+    """A GPS error model (its value is the scenario file's ``sensors.gps``)."""
+
+    PX4_SITL = "px4-sitl"
+    STANDALONE = "standalone"
+
+
+GPS_PROFILES: dict[GpsProfile, dict[str, float]] = {
+    GpsProfile.PX4_SITL: {"gps_noise_m": 0.026, "gps_alt_noise_m": 0.038, "gps_error_tau_s": 2.4},
+    GpsProfile.STANDALONE: {"gps_noise_m": 0.3, "gps_alt_noise_m": 0.5, "gps_error_tau_s": 20.0},
 }
 """GPS position error models (per-axis σ and correlation time of a Gauss-Markov error).
 
@@ -68,11 +79,11 @@ class SensorConfig:
     gps_satellites: int = 12
 
     @classmethod
-    def for_gps(cls, profile: str, **overrides: Any) -> SensorConfig:
-        """The sensors with the GPS error of ``profile`` (a key of :data:`GPS_PROFILES`)."""
+    def for_gps(cls, profile: GpsProfile | str, **overrides: Any) -> SensorConfig:
+        """The sensors with the GPS error of ``profile`` (a :class:`GpsProfile` or its value)."""
         if profile not in GPS_PROFILES:
-            raise ScenarioError(f"sensors: unknown GPS profile {profile!r}; choose one of {sorted(GPS_PROFILES)}")
-        return cls(**(GPS_PROFILES[profile] | overrides))
+            raise ScenarioError(f"sensors: unknown GPS profile {profile!r}; choose one of {gps_profile_names()}")
+        return cls(**(GPS_PROFILES[GpsProfile(profile)] | overrides))
 
     def __post_init__(self) -> None:
         for name in ("mag_rate_hz", "baro_rate_hz", "gps_rate_hz", "gps_error_tau_s"):
@@ -204,7 +215,7 @@ class SensorModel:
             e = self._gps_err
             for i in range(3):
                 e[i] = self._gps_a * e[i] + self._gps_b * gz[i]
-            rm = 6371000.0
+            rm = EARTH_RADIUS_M
             vn = cfg.gps_vel_noise_m_s * on
             gps = Gps(
                 old.lat_deg + math.degrees(e[0] * cfg.gps_noise_m / rm),

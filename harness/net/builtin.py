@@ -28,8 +28,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from harness.errors import ScenarioError
-from harness.net.model import Delivery, Drop, DropCause, StepResult, Vec3
+from harness.core.errors import ScenarioError
+from harness.core.geo import Vec3
+from harness.net.model import Delivery, Drop, DropCause, StepResult
 from harness.wire.protocol import BROADCAST, Packet
 
 C_M_S = 299_792_458.0

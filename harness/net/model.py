@@ -7,9 +7,16 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from harness.core.geo import Vec3
 from harness.wire.protocol import EVERY_PHASE, NO_DEADLINE, Packet
 
-Vec3 = tuple[float, float, float]
+
+class NetworkKind(enum.StrEnum):
+    """The network simulator of a run (its value is the scenario file's ``network.model`` and ``--network``)."""
+
+    NONE = "none"
+    BUILTIN = "builtin"
+    NS3 = "ns3"
 
 
 class DropCause(enum.Enum):

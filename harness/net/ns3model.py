@@ -25,8 +25,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from harness.errors import ScenarioError
-from harness.net.model import Delivery, StepResult, Vec3
+from harness.core.errors import ScenarioError
+from harness.core.geo import Vec3
+from harness.net.model import Delivery, StepResult
 from harness.wire.protocol import BROADCAST, Packet
 
 _STANDARDS = {"80211a": "WIFI_STANDARD_80211a", "80211g": "WIFI_STANDARD_80211g", "80211n": "WIFI_STANDARD_80211n"}

@@ -16,8 +16,9 @@ import asyncio
 import os
 from dataclasses import dataclass
 
-from harness.errors import HarnessError
-from harness.simclock.runtime import Delivery, SimRuntime, current
+from harness.core.errors import HarnessError
+from harness.simclock.installed import current
+from harness.simclock.runtime import Delivery, SimRuntime
 from harness.wire.protocol import BROADCAST
 
 

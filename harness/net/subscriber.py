@@ -13,25 +13,24 @@ import argparse
 import json
 import logging
 import os
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import IO
 
-from harness.errors import HarnessError, ScenarioError
-from harness.net.model import NetworkModel, StepResult, lookahead_ns
+from harness.core.errors import HarnessError, ScenarioError
+from harness.net.model import NetworkKind, NetworkModel, StepResult, lookahead_ns
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
 
 log = logging.getLogger(__name__)
 
 
-def make_model(name: str, seed: int, params: dict[str, object]) -> NetworkModel:
-    if name == "builtin":
+def make_model(name: NetworkKind | str, seed: int, params: dict[str, object]) -> NetworkModel:
+    if name == NetworkKind.BUILTIN:
         from harness.net.builtin import BuiltinRadio, RadioConfig
 
         return BuiltinRadio(RadioConfig.from_params(params), seed)
-    if name == "ns3":
+    if name == NetworkKind.NS3:
         from harness.net.ns3model import Ns3Config, Ns3Radio
 
         return Ns3Radio(Ns3Config.from_params(params), seed)
@@ -104,14 +103,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         model = make_model(a.model, a.seed, params)
         client = ChannelClient.connect(a.address, p.PeerKind.TYPE1, a.name)
     except (HarnessError, json.JSONDecodeError) as exc:
-        print(f"network: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 2
     run_dir = os.environ.get("HARNESS_RUN_DIR")
     events = (Path(run_dir) / "network-events.jsonl").open("a") if run_dir else None
     try:
         serve(client, model, events)
     except HarnessError as exc:
-        print(f"network: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 1
     finally:
         client.close()
@@ -121,4 +120,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -18,7 +18,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.record.status import read_summary
 from harness.record.world import read_topics
 

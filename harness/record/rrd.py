@@ -39,15 +39,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.core.geo import WGS84_A_M, flat_offset_m
 from harness.record.links import LinkTracker, ratio_color
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+from harness.record.sample import VehicleSample, WorldEvent
 
 if TYPE_CHECKING:
     from harness.autopilot.api import AutopilotApi, MissionItem
 
 log = logging.getLogger(__name__)
 
-R_EARTH_M = 6378137.0
 BODY_SCALE = 4.0
 """Vehicles are drawn this many times their real size (arm 0.25 m): visible when the view holds a swarm."""
 TRAIL_DT_S = 0.2
@@ -73,10 +74,7 @@ def vehicle_color(i: int) -> tuple[int, int, int]:
 def to_ned(lat_deg: float, lon_deg: float, origin: tuple[float, float, float]) -> tuple[float, float]:
     """North and east metres of a latitude / longitude from the world origin (flat earth, as the FDM's)."""
     lat0, lon0, _ = origin
-    return (
-        math.radians(lat_deg - lat0) * R_EARTH_M,
-        math.radians(lon_deg - lon0) * R_EARTH_M * math.cos(math.radians(lat0)),
-    )
+    return flat_offset_m(lat0, lon0, lat_deg, lon_deg, WGS84_A_M)
 
 
 class _Buffer:
@@ -139,6 +137,7 @@ class RrdRecorder:
         trail_s: float = 30.0,
         events_path: Path | None = None,
         application_id: str = "uav-harness",
+        clock: Clock = WALL,
     ) -> None:
         import rerun as rr
 
@@ -150,6 +149,7 @@ class RrdRecorder:
         self.origin = origin
         self.batch_s = batch_s
         self.min_wall_s = min_wall_s
+        self._clock = clock
         self.trail_s = trail_s
         self.view_step_s = VIEW_STEP_S / 2 if serve_port is not None else VIEW_STEP_S
         """Trails and links every second of sim; every half second live (a trail keeps up with its body)."""
@@ -166,7 +166,7 @@ class RrdRecorder:
             self.grpc_url = f"rerun+http://127.0.0.1:{serve_port}/proxy"
         self._rec.set_sinks(*sinks, default_blueprint=blueprint(n_vehicles))
         self._buf = _Buffer(n_vehicles)
-        self._last_flush_wall = real_monotonic_ns()
+        self._last_flush_wall = clock.now_ns()
         self._trail: list[np.ndarray] = []
         """Trail points, one (n, 3) array of every vehicle's position per TRAIL_DT_S, oldest first."""
         self._trail_t: list[float] = []
@@ -183,29 +183,16 @@ class RrdRecorder:
 
     # -- the WorldSink interface --------------------------------------------------------------------------
 
-    def vehicle(
-        self,
-        t_ns: int,
-        vehicle: int,
-        pos_ned_m: tuple[float, float, float],
-        quat_wxyz: tuple[float, float, float, float],
-        vel_ned_m_s: tuple[float, float, float],
-        lat_deg: float,
-        lon_deg: float,
-        alt_amsl_m: float,
-        motors: tuple[float, ...],
-        on_ground: bool,
-        crashed: bool,
-    ) -> None:
-        w, x, y, z = quat_wxyz
-        self._buf.add(t_ns / NS_PER_S, vehicle, (pos_ned_m, (x, y, z, w), vel_ned_m_s, (lat_deg, lon_deg)))
+    def vehicle(self, s: VehicleSample) -> None:
+        w, x, y, z = s.quat_wxyz
+        self._buf.add(s.t_ns / NS_PER_S, s.vehicle, (s.pos_ned_m, (x, y, z, w), s.vel_ned_m_s, (s.lat_deg, s.lon_deg)))
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
         t_s = t_ns / NS_PER_S
         self._buf.tick_t_s.append(t_s)
         self._buf.rtf.append(t_s / wall_s if wall_s > 0 else 0.0)
         if self._buf.span_s() >= self.batch_s:
-            now = real_monotonic_ns()
+            now = self._clock.now_ns()
             if now - self._last_flush_wall >= self.min_wall_s * NS_PER_S or self._buf.span_s() >= 60.0:
                 self._last_flush_wall = now
                 self._send_batch()
@@ -214,7 +201,7 @@ class RrdRecorder:
         rr = self._rr
         self._rec.set_time("sim_time", duration=t_ns / NS_PER_S)
         text = kind + (" " + " ".join(f"{k}={v}" for k, v in detail.items()) if detail else "")
-        level = rr.TextLogLevel.ERROR if kind == "crash" else rr.TextLogLevel.INFO
+        level = rr.TextLogLevel.ERROR if kind == WorldEvent.CRASH else rr.TextLogLevel.INFO
         self._rec.log("events", rr.TextLog(text, level=level))
 
     def flush(self) -> None:

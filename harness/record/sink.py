@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
+from harness.record.sample import VehicleSample
 from harness.record.world import WorldRecorder
 
 if TYPE_CHECKING:
@@ -39,20 +40,7 @@ def rrd_wanted(serve_port: int | None) -> bool:
 class WorldSink(Protocol):
     """What the physics loop records: every vehicle's truth at the record rate, tick timing, events."""
 
-    def vehicle(
-        self,
-        t_ns: int,
-        vehicle: int,
-        pos_ned_m: tuple[float, float, float],
-        quat_wxyz: tuple[float, float, float, float],
-        vel_ned_m_s: tuple[float, float, float],
-        lat_deg: float,
-        lon_deg: float,
-        alt_amsl_m: float,
-        motors: tuple[float, ...],
-        on_ground: bool,
-        crashed: bool,
-    ) -> None: ...
+    def vehicle(self, s: VehicleSample) -> None: ...
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None: ...
 
@@ -131,24 +119,10 @@ class WorldTee:
             except Exception:
                 pass
 
-    def vehicle(
-        self,
-        t_ns: int,
-        vehicle: int,
-        pos_ned_m: tuple[float, float, float],
-        quat_wxyz: tuple[float, float, float, float],
-        vel_ned_m_s: tuple[float, float, float],
-        lat_deg: float,
-        lon_deg: float,
-        alt_amsl_m: float,
-        motors: tuple[float, ...],
-        on_ground: bool,
-        crashed: bool,
-    ) -> None:
-        args = (t_ns, vehicle, pos_ned_m, quat_wxyz, vel_ned_m_s, lat_deg, lon_deg, alt_amsl_m, motors, on_ground)
-        self.mcap.vehicle(*args, crashed)
+    def vehicle(self, s: VehicleSample) -> None:
+        self.mcap.vehicle(s)
         if self.view is not None or self._opening is not None:
-            self._guard(lambda v: v.vehicle(*args, crashed))
+            self._guard(lambda v: v.vehicle(s))
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
         self.mcap.tick(t_ns, tick, wall_s, tick_wall_us)

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+from harness.core.clock import NS_PER_S, WALL, Clock
 
 RUNNING = "running"
 KILLED = "killed"
@@ -83,8 +83,10 @@ class Checkpoint:
         snapshot: Callable[[], dict[str, Any]],
         flush: Callable[[], None],
         every_s: float = CHECKPOINT_EVERY_S,
+        clock: Clock = WALL,
     ) -> None:
         self.path = out / "summary.json"
+        self.clock = clock
         self._snapshot = snapshot
         self._flush = flush
         self._every_ns = int(every_s * NS_PER_S)
@@ -92,10 +94,10 @@ class Checkpoint:
         self._identity = {"pid": os.getpid(), "pid_start": _start_time(os.getpid())}
 
     def write(self) -> None:
-        self._last_ns = real_monotonic_ns()
+        self._last_ns = self.clock.now_ns()
         self._flush()
         write_json(self.path, self._snapshot() | {"status": RUNNING, "finished": False} | self._identity)
 
     def maybe(self) -> None:
-        if real_monotonic_ns() - self._last_ns >= self._every_ns:
+        if self.clock.now_ns() - self._last_ns >= self._every_ns:
             self.write()

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 from urllib.parse import quote
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.record.sink import INSTALL_HINT, rerun_available
 
 

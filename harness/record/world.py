@@ -20,8 +20,9 @@ from typing import Any
 import msgspec
 from mcap.writer import CompressionType, Writer
 
+from harness.core.clock import NS_PER_S
+from harness.record.sample import VehicleSample
 from harness.record.sealed import SealedFile
-from harness.simclock.clock import NS_PER_S
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _XYZ = {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}
@@ -135,22 +136,10 @@ class WorldRecorder:
         log_time = self.epoch_ns + t_ns
         self._w.add_message(channel, log_time, _json(obj), log_time, self._seq)
 
-    def vehicle(
-        self,
-        t_ns: int,
-        vehicle: int,
-        pos_ned_m: tuple[float, float, float],
-        quat_wxyz: tuple[float, float, float, float],
-        vel_ned_m_s: tuple[float, float, float],
-        lat_deg: float,
-        lon_deg: float,
-        alt_amsl_m: float,
-        motors: tuple[float, ...],
-        on_ground: bool,
-        crashed: bool,
-    ) -> None:
+    def vehicle(self, s: VehicleSample) -> None:
+        t_ns, vehicle, pos_ned_m, vel_ned_m_s, motors = s.t_ns, s.vehicle, s.pos_ned_m, s.vel_ned_m_s, s.motors
         stamp = _stamp(self.epoch_ns + t_ns)
-        w, x, y, z = quat_wxyz
+        w, x, y, z = s.quat_wxyz
         self._put(
             self._pose[vehicle],
             t_ns,
@@ -169,9 +158,9 @@ class WorldRecorder:
             {
                 "timestamp": stamp,
                 "frame_id": "wgs84",
-                "latitude": lat_deg,
-                "longitude": lon_deg,
-                "altitude": alt_amsl_m,
+                "latitude": s.lat_deg,
+                "longitude": s.lon_deg,
+                "altitude": s.alt_amsl_m,
             },
         )
         self._put(
@@ -183,8 +172,8 @@ class WorldRecorder:
                 "pos_ned_m": list(pos_ned_m),
                 "vel_ned_m_s": list(vel_ned_m_s),
                 "motors": [m if math.isfinite(m) else None for m in motors],
-                "on_ground": on_ground,
-                "crashed": crashed,
+                "on_ground": s.on_ground,
+                "crashed": s.crashed,
             },
         )
 

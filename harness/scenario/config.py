@@ -1,4 +1,4 @@
-"""Scenario files (TOML): validated into a :class:`~harness.scenario.launcher.LaunchPlan`.
+"""Scenario files (TOML): validated into a :class:`~harness.run.launcher.LaunchPlan`.
 
 Every error is a :class:`ScenarioError` whose message is one line naming the file, the field and what is
 wrong (``scenario.toml: vehicles[1].mission: file missions/x.py does not exist``). Unknown keys get the
@@ -19,9 +19,11 @@ from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware
-from harness.errors import ScenarioError
-from harness.scenario.launcher import LaunchPlan, MissionPlan
+from harness.core.errors import ScenarioError
+from harness.fdm.sensors import GPS_PROFILES, GpsProfile, gps_profile_names
+from harness.net.model import NetworkKind
 from harness.scenario.limits import check_plan, vehicle_count_error
+from harness.scenario.plan import LaunchPlan, MissionPlan
 
 _TOP = {
     "seed",
@@ -230,7 +232,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
             "rates.physics_hz", f"must be a whole multiple of rates.tick_hz ({tick_hz:g}), got {physics_hz:g}"
         )
     model = net.get("model", "none")
-    if model not in ("none", "builtin", "ns3"):
+    if model not in set(NetworkKind):
         raise ctx.fail("network.model", f"must be 'builtin', 'ns3' or 'none', got {model!r}")
 
     missions, spawns, params = _vehicles(ctx, raw.get("vehicles"))
@@ -250,7 +252,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         phase_every=ctx.integer(rates.get("phase_every", 5), "rates.phase_every", minimum=1),
         speed=speed,
         duration_s=ctx.number(raw["duration_s"], "duration_s", positive=True) if "duration_s" in raw else None,
-        network=str(model),
+        network=NetworkKind(model),
         network_params=dict(ctx.table(net.get("params", {}), "network.params")),
         stall_timeout_s=ctx.number(channel.get("stall_timeout_s", 30.0), "channel.stall_timeout_s", positive=True),
         origin=(
@@ -305,12 +307,10 @@ _PLAN_NAMES = {
 """The scenario file's name of a LaunchPlan field, for error messages (the rest have the same name)."""
 
 
-def _gps_profile(ctx: _Ctx, value: Any) -> str:
-    from harness.fdm.sensors import GPS_PROFILES
-
+def _gps_profile(ctx: _Ctx, value: Any) -> GpsProfile:
     if value not in GPS_PROFILES:
-        raise ctx.fail("sensors.gps", f"expected one of {sorted(GPS_PROFILES)}, got {value!r}")
-    return str(value)
+        raise ctx.fail("sensors.gps", f"expected one of {gps_profile_names()}, got {value!r}")
+    return GpsProfile(value)
 
 
 def _boolean(ctx: _Ctx, value: Any, field: str) -> bool:

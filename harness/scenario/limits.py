@@ -31,10 +31,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 
 if TYPE_CHECKING:
-    from harness.scenario.launcher import LaunchPlan
+    from harness.scenario.plan import LaunchPlan
 
 MAX_VEHICLES = 244
 MAX_DURATION_S = 1e9
@@ -167,7 +167,7 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
     check_params(plan, c)
     check_network(plan.network, plan.network_params, c)
     if plan.signing_key_file is not None:
-        from harness.secrets import read_signing_key
+        from harness.core.secrets import read_signing_key
 
         read_signing_key(plan.signing_key_file, f"{prefix}{c.names.get('signing_key_file', 'signing_key_file')}")
 

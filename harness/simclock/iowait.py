@@ -20,7 +20,7 @@ import threading
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from harness.simclock.clock import NS_PER_S
+from harness.core.clock import NS_PER_S
 from harness.simclock.runtime import SimRuntime
 
 real_select = select.select

@@ -6,7 +6,7 @@
   resolve to ``mavsdk_grpc`` (PyPI ``mavsdk-grpc``), which is the old API under a new name.
 - Scripts written for one vehicle listen on the standard port 14540 (``udpin://0.0.0.0:14540``,
   ``udp://:14540``). The runner points them at the vehicle's own port instead (``udpout://127.0.0.1:P``,
-  :mod:`harness.simclock.endpoints`), so one unmodified script flies every vehicle of a swarm, and no
+  :mod:`harness.core.endpoints`), so one unmodified script flies every vehicle of a swarm, and no
   other run's script can reach this run's vehicles.
 - The gRPC API starts a ``mavsdk_server`` per ``System()`` on gRPC port 50051 by default; with several
   missions on one machine those collide, so the default becomes a free port.
@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import enum
 import importlib
 import importlib.abc
 import importlib.machinery
@@ -26,20 +27,32 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from harness.simclock.endpoints import VehicleEndpoints, mavsdk_url
+from harness.core.endpoints import VehicleEndpoints, mavsdk_url
 
 log = logging.getLogger(__name__)
 
 
-def detect_api(source: str) -> str:
-    """'grpc' for scripts written against the old API, 'native' for mavsdk ≥ 4, '' without MAVSDK."""
+class MavsdkApi(enum.StrEnum):
+    """Which MAVSDK a script uses (the value is what ``HARNESS_MAVSDK_API`` may force)."""
+
+    NONE = ""
+    NATIVE = "native"
+    """mavsdk >= 4 (``Mavsdk()``, ``mavsdk.asyncio``)."""
+    GRPC = "grpc"
+    """The old gRPC API, imported as ``mavsdk``."""
+    GRPC_NAMED = "grpc-named"
+    """The old gRPC API, imported as ``mavsdk_grpc``."""
+
+
+def detect_api(source: str) -> MavsdkApi:
+    """GRPC for scripts written against the old API, NATIVE for mavsdk >= 4, NONE without MAVSDK."""
     if "mavsdk" not in source:
-        return ""
+        return MavsdkApi.NONE
     if re.search(r"\bMavsdk\s*\(|mavsdk\.asyncio|Configuration\s*\(", source):
-        return "native"
+        return MavsdkApi.NATIVE
     if re.search(r"\bimport\s+mavsdk_grpc\b|from\s+mavsdk_grpc\b", source):
-        return "grpc-named"
-    return "grpc"
+        return MavsdkApi.GRPC_NAMED
+    return MavsdkApi.GRPC
 
 
 def _free_tcp_port() -> int:
@@ -64,7 +77,7 @@ class _AliasFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 def _patch_grpc(ep: VehicleEndpoints | None) -> None:
-    from harness.simclock.runtime import current
+    from harness.simclock.installed import current
 
     system_mod = importlib.import_module("mavsdk_grpc.system")
     System = system_mod.System
@@ -111,7 +124,7 @@ def _hold_phase_during_requests() -> None:
     """
     from grpc.aio import _channel
 
-    from harness.simclock.runtime import current
+    from harness.simclock.installed import current
 
     callable_cls: Any = _channel.UnaryUnaryMultiCallable
     if getattr(callable_cls, "_harness_holds", False):
@@ -166,27 +179,27 @@ def _wrap_connection(orig: Callable[..., Any], ep: VehicleEndpoints | None) -> C
     return wrapper
 
 
-def install(script: Path, ep: VehicleEndpoints | None, api: str | None = None) -> str:
-    """Prepare MAVSDK for ``script``; returns the API used ('native', 'grpc' or '' for none)."""
+def install(script: Path, ep: VehicleEndpoints | None, api: MavsdkApi | None = None) -> MavsdkApi:
+    """Prepare MAVSDK for ``script``; returns the API used (NATIVE, GRPC or NONE)."""
     source = script.read_text(errors="replace")
     api = api or detect_api(source)
-    if api in ("grpc", "grpc-named"):
+    if api in (MavsdkApi.GRPC, MavsdkApi.GRPC_NAMED):
         try:
             importlib.import_module("mavsdk_grpc")
         except ImportError:
-            from harness.errors import ScenarioError
+            from harness.core.errors import ScenarioError
 
             raise ScenarioError(
                 f"{script} uses the old gRPC MAVSDK API (from mavsdk import System … await drone.connect()); "
                 "install it with: pip install mavsdk-grpc"
             ) from None
-        if api == "grpc":
+        if api == MavsdkApi.GRPC:
             for name in [m for m in sys.modules if m == "mavsdk" or m.startswith("mavsdk.")]:
                 del sys.modules[name]
             sys.meta_path.insert(0, _AliasFinder())
         _patch_grpc(ep)
-        return "grpc"
-    if api == "native":
+        return MavsdkApi.GRPC
+    if api == MavsdkApi.NATIVE:
         _patch_native(ep)
-        return "native"
-    return ""
+        return MavsdkApi.NATIVE
+    return MavsdkApi.NONE

@@ -5,7 +5,8 @@ answers BEGIN-TICK-0 with END-TICK-0 once the script is idle, and runs SCRIPT as
 main thread. When the script ends — returns, raises, calls ``sys.exit`` — the runner reports the exit
 code to the channel (BYE) and ends the process itself, even if a library left a non-daemon thread
 behind (``mavsdk-grpc`` does). When the run ends first, the script is stopped with exit code
-:data:`EXIT_RUN_ENDED`.
+:data:`EXIT_RUN_ENDED`. Saying so and ending the process are the caller's (:class:`MissionHooks`, given by
+``harness mission`` in ``cli.py``); this module neither prints nor exits.
 """
 
 from __future__ import annotations
@@ -16,14 +17,15 @@ import runpy
 import sys
 import threading
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn
 
-from harness.errors import ScenarioError
+from harness.core.clock import NS_PER_S
+from harness.core.endpoints import VehicleEndpoints
+from harness.core.errors import ScenarioError
 from harness.simclock import mavsdk_compat, patch
-from harness.simclock.clock import real_sleep
-from harness.simclock.endpoints import VehicleEndpoints
 from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
@@ -43,11 +45,22 @@ class MissionSpec:
     name: str
 
 
+@dataclass(frozen=True)
+class MissionHooks:
+    """What the mission runner needs of its process (``harness mission`` gives them)."""
+
+    report: Callable[[str], None]
+    """Tell the user one line (the mission's stderr)."""
+    end_process: Callable[[int], NoReturn]
+    """End the process with this exit code now, whatever threads the script left (see :func:`kill_descendants`)."""
+
+
 class _ClockThread(threading.Thread):
-    def __init__(self, client: ChannelClient, rt: SimRuntime) -> None:
+    def __init__(self, client: ChannelClient, rt: SimRuntime, hooks: MissionHooks) -> None:
         super().__init__(name=f"{INFRA_THREAD_PREFIX}clock", daemon=True)
         self.client = client
         self.rt = rt
+        self.hooks = hooks
         self.end_reason: str | None = None
         self.seq = 0
         self.script_done = False
@@ -86,11 +99,10 @@ class _ClockThread(threading.Thread):
             return  # the script ended first; the main thread is reporting and exiting
         self.end_reason = reason
         self.rt.close()
-        sys.stderr.write(f"harness mission: {reason}; stopping the script\n")
-        sys.stderr.flush()
+        self.hooks.report(f"{reason}; stopping the script")
         # Give the script a moment to finish on its own (its waits were all released), then end it.
-        real_sleep(2.0)
-        _exit(EXIT_RUN_ENDED)
+        self.rt.wall.sleep_ns(2 * NS_PER_S)
+        self.hooks.end_process(EXIT_RUN_ENDED)
 
 
 def _delivery(msg: p.Deliver) -> Delivery:
@@ -106,7 +118,7 @@ def _children(pid: int) -> list[int]:
         return []
 
 
-def _kill_descendants() -> None:
+def kill_descendants() -> None:
     """Stop whatever the script started (mavsdk_server for the gRPC API): no orphans."""
     import signal
 
@@ -120,16 +132,6 @@ def _kill_descendants() -> None:
             os.kill(pid, signal.SIGKILL)
         except OSError:
             pass
-
-
-def _exit(code: int) -> None:
-    _kill_descendants()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except Exception:
-            pass
-    os._exit(code)
 
 
 def run_script(script: Path, args: Sequence[str]) -> int:
@@ -169,7 +171,7 @@ def _script_threads() -> list[threading.Thread]:
     return out
 
 
-def run_mission(spec: MissionSpec) -> int:
+def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     """Connect, patch, run the script on the sim clock, report, and return the exit code."""
     if not spec.script.is_file():
         raise ScenarioError(f"mission script {spec.script} does not exist")
@@ -179,10 +181,14 @@ def run_mission(spec: MissionSpec) -> int:
     os.environ.setdefault("HARNESS_SYSID", str(spec.vehicle + 1))
     patch.install(rt)
     ep = VehicleEndpoints.from_env(spec.vehicle)
-    from harness.net import udp
+    from harness.simclock import udp
 
     udp.install(rt, ep)  # sockets: sim-time waits, MAVLink to this vehicle, UDP to 10.42.0.x on the radio
-    api = mavsdk_compat.install(spec.script, ep, os.environ.get("HARNESS_MAVSDK_API") or None)
+    forced = os.environ.get("HARNESS_MAVSDK_API") or None
+    if forced is not None and forced not in set(mavsdk_compat.MavsdkApi):
+        choices = ", ".join(a.value for a in mavsdk_compat.MavsdkApi if a.value)
+        raise ScenarioError(f"HARNESS_MAVSDK_API={forced!r}: expected one of {choices}")
+    api = mavsdk_compat.install(spec.script, ep, mavsdk_compat.MavsdkApi(forced) if forced else None)
     if api:
         log.info("mission %s: MAVSDK %s API, vehicle endpoints %s", spec.name, api, ep)
 
@@ -193,7 +199,7 @@ def run_mission(spec: MissionSpec) -> int:
             pass  # the run is over; the clock thread ends the script
 
     rt.request_phase = wake
-    clock = _ClockThread(client, rt)
+    clock = _ClockThread(client, rt, hooks)
     clock.start()
     rt.wait_first_phase()
     code = run_script(spec.script, spec.args)
@@ -207,16 +213,3 @@ def run_mission(spec: MissionSpec) -> int:
     except Exception:
         pass
     return code
-
-
-def main_mission(spec: MissionSpec) -> None:
-    """Entry point of the ``harness mission`` process: never returns."""
-    try:
-        code = run_mission(spec)
-    except ScenarioError as exc:
-        sys.stderr.write(f"harness mission: {exc}\n")
-        code = 2
-    except Exception as exc:
-        sys.stderr.write(f"harness mission: {exc}\n")
-        code = 1
-    _exit(code)

@@ -18,12 +18,12 @@ from collections.abc import Callable, Mapping
 from itertools import islice
 from typing import Any
 
+from harness.core.clock import NS_PER_S
 from harness.simclock import iowait
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
-from harness.simclock.runtime import SimRuntime, Waiter, set_current
+from harness.simclock.installed import INSTALLED
+from harness.simclock.runtime import SimRuntime, Waiter
 
 _originals: dict[tuple[object, str], Any] = {}
-_rt: SimRuntime | None = None
 
 
 def _set(owner: object, name: str, value: object) -> None:
@@ -34,18 +34,16 @@ def _set(owner: object, name: str, value: object) -> None:
 
 
 def installed() -> bool:
-    return _rt is not None
+    return INSTALLED.runtime is not None
 
 
 def install(rt: SimRuntime) -> None:
     """Patch the process so that time and waits follow ``rt``."""
-    global _rt
-    if _rt is rt:
+    if INSTALLED.runtime is rt:
         return
-    if _rt is not None:
+    if INSTALLED.runtime is not None:
         uninstall()
-    _rt = rt
-    set_current(rt)
+    INSTALLED.runtime = rt
 
     def sim_time() -> float:
         return rt.unix_ns() / NS_PER_S
@@ -77,7 +75,7 @@ def install(rt: SimRuntime) -> None:
 
     def wait_clock() -> float:
         # the clock of timed waits: sim time where waits are sim-time waits, real time elsewhere
-        return rt.now_ns() / NS_PER_S if rt._tracked() else real_monotonic_ns() / NS_PER_S
+        return (rt.now_ns() if rt._tracked() else rt.wall.now_ns()) / NS_PER_S
 
     # modules that captured a time function at import, for their timed waits
     _set(threading, "_time", wait_clock)
@@ -102,16 +100,14 @@ def install(rt: SimRuntime) -> None:
 
 def uninstall() -> None:
     """Put every original back."""
-    global _rt
-    if _rt is None:
+    if INSTALLED.runtime is None:
         return
     policy = _originals.pop((asyncio, "_policy"), None)
     for (owner, name), value in reversed(list(_originals.items())):
         setattr(owner, name, value)
     _originals.clear()
     asyncio.set_event_loop_policy(policy)
-    _rt = None
-    set_current(None)
+    INSTALLED.runtime = None
 
 
 def patched_names() -> Mapping[str, str]:

@@ -31,7 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import FrameType
 
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.wire.protocol import EVERY_PHASE, NO_DEADLINE
 
 log = logging.getLogger(__name__)
@@ -96,7 +96,9 @@ class PhaseStats:
 class SimRuntime:
     """The sim clock of one mission process. All times are integer nanoseconds."""
 
-    def __init__(self, epoch_ns: int, phase_period_ns: int, vehicle: int = -1) -> None:
+    def __init__(self, epoch_ns: int, phase_period_ns: int, vehicle: int = -1, wall: Clock = WALL) -> None:
+        self.wall = wall
+        """Real time: phase statistics, and the sleeps of threads that are not the script's."""
         self.epoch_ns = epoch_ns
         self.phase_period_ns = phase_period_ns
         self.vehicle = vehicle
@@ -152,7 +154,8 @@ class SimRuntime:
         Returns the lookahead for END-TICK-0: the earliest deadline of a timed wait (``NO_DEADLINE`` when
         there is none) and whether a delivered packet would wake a waiting thread.
         """
-        start = real_monotonic_ns()
+        now_wall = self.wall.now_ns
+        start = now_wall()
         with self._mu:
             if t_ns < self._now_ns:
                 raise ValueError(f"sim time went backwards: {t_ns} < {self._now_ns}")
@@ -188,16 +191,16 @@ class SimRuntime:
                 self._settle()
                 continue
             self._signal.acquire(True, idle_poll_s)
-            if real_monotonic_ns() > report_at:
+            if now_wall() > report_at:
                 report_at += _REPORT_AFTER_NS
                 log.warning(
                     "phase 0 at t=%.3f s has waited %.1f s for the script; busy threads: %s",
                     t_ns / NS_PER_S,
-                    (real_monotonic_ns() - start) / NS_PER_S,
+                    (now_wall() - start) / NS_PER_S,
                     "; ".join(self.busy_threads()) or "none",
                 )
         self.stats.phases += 1
-        self.stats.last_phase_wall_ns = real_monotonic_ns() - start
+        self.stats.last_phase_wall_ns = now_wall() - start
         self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
         return lookahead
 
@@ -292,9 +295,7 @@ class SimRuntime:
     def sleep_ns(self, ns: int) -> None:
         """Block the calling thread for ``ns`` of sim time (at least until a later phase 0)."""
         if not self._tracked():
-            from harness.simclock.clock import real_sleep
-
-            real_sleep(max(0, ns) / NS_PER_S)
+            self.wall.sleep_ns(ns)
             return
         if ns <= 0:
             return
@@ -570,16 +571,3 @@ def _thread_code_is_script(t: threading.Thread) -> bool:
     # phase the machine's pace gives it. Only service threads of libraries that block in C for the whole run
     # and reach the script through its gated event loop stay outside (gRPC's poller, mavsdk-grpc's readers).
     return module_name.split(".", 1)[0] not in _SERVICE_MODULES
-
-
-_current: SimRuntime | None = None
-
-
-def current() -> SimRuntime | None:
-    """The sim runtime of this process, if it runs under ``harness mission``."""
-    return _current
-
-
-def set_current(rt: SimRuntime | None) -> None:
-    global _current
-    _current = rt

@@ -6,7 +6,7 @@ connection to the channel exists). The kernel socket underneath is always non-bl
 ``setblocking(False)`` raise ``BlockingIOError`` at once, a timeout is sim time and raises ``TimeoutError``,
 and ``None`` blocks (idle for the sim clock) until data comes.
 
-MAVLink addresses are mapped to the mission's own vehicle (:mod:`harness.simclock.endpoints`):
+MAVLink addresses are mapped to the mission's own vehicle (:mod:`harness.core.endpoints`):
 
 - a UDP socket bound to a port scripts listen on (14540, 14550, 14551 on a local or wildcard address) is
   bound to a free loopback port instead and announces itself to its vehicle (one ``LISTEN_HELLO``
@@ -24,9 +24,8 @@ import socket as _socket
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from harness.simclock import iowait
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
-from harness.simclock.endpoints import (
+from harness.core.clock import NS_PER_S, WALL
+from harness.core.endpoints import (
     LISTEN_HELLO,
     SETTLE_PREFIX,
     VehicleEndpoints,
@@ -34,13 +33,12 @@ from harness.simclock.endpoints import (
     udp_destination,
     udp_listen_redirected,
 )
+from harness.simclock import iowait
+from harness.simclock.installed import INSTALLED
 from harness.simclock.runtime import SimRuntime
 
 _original_socket = _socket.socket
 _T = TypeVar("_T")
-
-_rt: SimRuntime | None = None
-_ep: VehicleEndpoints | None = None
 
 
 class SimSocket(_original_socket):
@@ -49,7 +47,7 @@ class SimSocket(_original_socket):
     def __init__(self, family: Any = -1, type: Any = -1, proto: int = -1, fileno: int | None = None) -> None:
         super().__init__(family, type, proto, fileno)
         self._user_timeout: float | None = super().gettimeout()
-        if _rt is not None:
+        if INSTALLED.sockets is not None:
             super().settimeout(0.0)  # the kernel side never blocks; waits are the sim clock's
 
     # -- timeouts ------------------------------------------------------------------------------
@@ -61,7 +59,7 @@ class SimSocket(_original_socket):
         if value is not None and value < 0:
             raise ValueError("Timeout value out of range")
         self._user_timeout = None if value is None else float(value)
-        super().settimeout(0.0 if _rt is not None else value)
+        super().settimeout(0.0 if INSTALLED.sockets is not None else value)
 
     def gettimeout(self) -> float | None:
         return self._timeout()
@@ -72,7 +70,7 @@ class SimSocket(_original_socket):
     def _blocking(self, op: Callable[[], _T], write: bool = False) -> _T:
         """Run a non-blocking ``op`` until it succeeds, waiting on the sim clock in between."""
         timeout = self._timeout()
-        rt = _rt
+        rt = INSTALLED.sockets
         if rt is None or timeout == 0.0:
             return op()
         if not rt._tracked():  # a harness thread: the original blocking behaviour on the wall clock
@@ -98,7 +96,7 @@ class SimSocket(_original_socket):
             iowait.wait(rt, [] if write else [fd], [fd] if write else [], deadline, inbox=self._waits_on_inbox())
 
     def _sim_ready(self) -> bool:
-        """Data the runtime holds for this socket (radio packets); see ``harness.net.udp``."""
+        """Data the runtime holds for this socket (radio packets); see ``harness.simclock.udp``."""
         return False
 
     def _waits_on_inbox(self) -> bool:
@@ -114,28 +112,31 @@ class SimSocket(_original_socket):
     def _mark_mavlink(self) -> None:
         """This socket talks to the vehicle: its waits follow every phase, its sends are settled."""
         self._mavlink = True
-        if _rt is not None:
-            _rt.mavlink_fds.add(self.fileno())
+        rt = INSTALLED.sockets
+        if rt is not None:
+            rt.mavlink_fds.add(self.fileno())
 
     def _sent(self) -> None:
-        if self._mavlink and _rt is not None:
-            _rt.mavlink_sent += 1
+        rt = INSTALLED.sockets
+        if self._mavlink and rt is not None:
+            rt.mavlink_sent += 1
 
     def close(self) -> None:
-        if self._mavlink and _rt is not None:
-            _rt.mavlink_fds.discard(self.fileno())
+        rt = INSTALLED.sockets
+        if self._mavlink and rt is not None:
+            rt.mavlink_fds.discard(self.fileno())
         super().close()
 
     def _map_udp(self, address: Any) -> Any:
-        if _ep is not None and self._is_inet_dgram() and isinstance(address, tuple):
-            dst = udp_destination(address[0], int(address[1]), _ep)
+        if INSTALLED.endpoints is not None and self._is_inet_dgram() and isinstance(address, tuple):
+            dst = udp_destination(address[0], int(address[1]), INSTALLED.endpoints)
             if dst is not None:
                 self._mark_mavlink()
                 return dst
         return address
 
     def bind(self, address: Any) -> None:
-        ep = _ep
+        ep = INSTALLED.endpoints
         if (
             ep is not None
             and self._is_inet_dgram()
@@ -150,7 +151,7 @@ class SimSocket(_original_socket):
         super().bind(address)
 
     def connect(self, address: Any) -> None:
-        ep = _ep
+        ep = INSTALLED.endpoints
         if ep is not None and isinstance(address, tuple) and self.family == _socket.AF_INET:
             if self.type == _socket.SOCK_STREAM:
                 dst = tcp_destination(address[0], int(address[1]), ep)
@@ -159,7 +160,7 @@ class SimSocket(_original_socket):
                     self._mark_mavlink()
             else:
                 address = self._map_udp(address)
-        if self.type != _socket.SOCK_STREAM or _rt is None or self._timeout() == 0.0:
+        if self.type != _socket.SOCK_STREAM or INSTALLED.sockets is None or self._timeout() == 0.0:
             super().connect(address)
             return
         err = super().connect_ex(address)
@@ -244,9 +245,9 @@ class _Settler:
         self._seq += 1
         token = SETTLE_PREFIX + str(self._seq).encode()
         self._sock.sendto(token, self._dst)
-        deadline = real_monotonic_ns() + int((self.PATIENCE_S if self._answered else self.IMPATIENCE_S) * NS_PER_S)
+        deadline = WALL.now_ns() + int((self.PATIENCE_S if self._answered else self.IMPATIENCE_S) * NS_PER_S)
         while True:
-            r, _, _ = iowait.real_select([self._sock], [], [], max(0, deadline - real_monotonic_ns()) / NS_PER_S)
+            r, _, _ = iowait.real_select([self._sock], [], [], max(0, deadline - WALL.now_ns()) / NS_PER_S)
             if not r:
                 self._answered = False
                 return False
@@ -261,14 +262,12 @@ class _Settler:
 
 def install(rt: SimRuntime, ep: VehicleEndpoints | None, cls: type[SimSocket] = SimSocket) -> None:
     """Sockets created from now on are ``cls`` (mission processes only)."""
-    global _rt, _ep
-    _rt, _ep = rt, ep
+    INSTALLED.sockets, INSTALLED.endpoints = rt, ep
     if ep is not None:
         rt.settle_mavlink = _Settler(ep)
     _socket.socket = cls  # type: ignore[misc]
 
 
 def uninstall() -> None:
-    global _rt, _ep
-    _rt = _ep = None
+    INSTALLED.sockets = INSTALLED.endpoints = None
     _socket.socket = _original_socket  # type: ignore[misc]

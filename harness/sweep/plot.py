@@ -15,8 +15,9 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from harness.errors import ScenarioError
-from harness.sweep.results import RunStatus, read_results
+from harness.core.errors import ScenarioError
+from harness.run.result import RunStatus
+from harness.sweep.results import read_results
 
 _SKIP = {"seed", "faults", "mission_exit_code"}
 _RUN_METRICS = ("sim_time_s", "wall_time_s", "real_time_factor")

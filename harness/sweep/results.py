@@ -14,7 +14,6 @@ Columns (``docs/sweep.md``):
 from __future__ import annotations
 
 import csv
-import enum
 import json
 import logging
 import math
@@ -24,25 +23,13 @@ from pathlib import Path
 from typing import Any
 
 from harness.record.status import read_summary
+from harness.run.result import RunStatus
 
 log = logging.getLogger(__name__)
 
 RUN_FIELDS = ("status", "message", "sim_time_s", "wall_time_s", "real_time_factor")
 VEHICLE_FIELDS = ("mission_exit_code", "max_altitude_m", "landed", "armed", "crashed")
 _METRICS = re.compile(r"^metrics-(\d+)\.json$")
-
-
-class RunStatus(enum.StrEnum):
-    """A run's outcome in results.csv: the summary's status, or what the sweep saw when there is none."""
-
-    OK = "ok"
-    FAILED = "failed"
-    INTERRUPTED = "interrupted"
-    TIMEOUT = "timeout"
-    KILLED = "killed"
-    """``harness run`` was killed (``kill -9``, the OOM killer) after it started: its summary still said "running"."""
-    LOST = "lost"
-    """``harness run`` ended without writing a summary (a crash before it started)."""
 
 
 FINISHED = frozenset({RunStatus.OK, RunStatus.FAILED})

@@ -15,7 +15,6 @@ import logging
 import os
 import re
 import threading
-import time
 import uuid
 from collections.abc import Callable
 from concurrent.futures import CancelledError
@@ -23,8 +22,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness.errors import ScenarioError, SimulationError
-from harness.sweep.results import RunStatus, write_results
+from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.core.errors import ScenarioError, SimulationError
+from harness.run.result import RunStatus
+from harness.sweep.results import write_results
 from harness.sweep.spec import SweepSpec
 from harness.sweep.task import RunJob, finished_row, run_job
 
@@ -110,8 +111,14 @@ class SweepOutcome:
 
 
 def run_sweep(
-    spec: SweepSpec, opts: SweepOptions, progress: Callable[[SweepProgress], None] | None = None
+    spec: SweepSpec,
+    opts: SweepOptions,
+    progress: Callable[[SweepProgress], None] | None = None,
+    clock: Clock = WALL,
 ) -> SweepOutcome:
+    def now_s() -> float:
+        return clock.now_ns() / NS_PER_S
+
     out = opts.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     (out / "sweep.json").write_text(json.dumps(spec.describe(), indent=2, default=str))
@@ -130,14 +137,14 @@ def run_sweep(
     def ordered() -> list[dict[str, Any]]:
         return sorted(rows.values(), key=lambda row: order[row["run"]])
 
-    t0 = time.monotonic()
+    t0 = now_s()
     write_results(out, ordered(), params)
 
     def report(last: str = "") -> None:
         if progress is None:
             return
         done = len(rows)
-        elapsed = time.monotonic() - t0
+        elapsed = now_s() - t0
         ran = done - kept
         eta = elapsed / ran * (len(spec.runs) - done) if ran else None
         failed = sum(1 for row in rows.values() if row.get("status") != RunStatus.OK)
@@ -169,10 +176,10 @@ def run_sweep(
 
         report()
         with _Cluster(opts) as client:
-            interrupted = _drive(client, jobs, token, on_row, report)
+            interrupted = _drive(client, jobs, token, on_row, report, clock)
 
     files = write_results(out, ordered(), params)
-    return SweepOutcome(ordered(), len(rows) - kept, kept, interrupted, time.monotonic() - t0, files)
+    return SweepOutcome(ordered(), len(rows) - kept, kept, interrupted, now_s() - t0, files)
 
 
 def _drive(
@@ -181,6 +188,7 @@ def _drive(
     token: str,
     on_row: Callable[[dict[str, Any]], None],
     tick: Callable[[str], None],
+    clock: Clock = WALL,
 ) -> bool:
     """Submit every job and hand each row to ``on_row`` as its run ends; True when stopped by Ctrl-C."""
     from distributed import Event, wait
@@ -190,7 +198,11 @@ def _drive(
         client.submit(run_job, job, key=f"harness-run-{job.name}-{token}", pure=False, retries=0): job for job in jobs
     }
     pending = set(futures)
-    last_seen = last_check = time.monotonic()
+
+    def now_s() -> float:
+        return clock.now_ns() / NS_PER_S
+
+    last_seen = last_check = now_s()
 
     def collect(done: set[Any]) -> None:
         for fut in done:
@@ -223,11 +235,11 @@ def _drive(
             pending -= set(done)
             collect(set(done))
             if done:
-                last_seen = time.monotonic()
-            elif time.monotonic() - last_check > HEALTH_EVERY_S:
-                last_check = time.monotonic()
+                last_seen = now_s()
+            elif now_s() - last_check > HEALTH_EVERY_S:
+                last_check = now_s()
                 note = _health(client)
-                if note and time.monotonic() - last_seen > SCHEDULER_LOST_S and client.status != "running":
+                if note and now_s() - last_seen > SCHEDULER_LOST_S and client.status != "running":
                     raise SimulationError(f"{note} for {SCHEDULER_LOST_S:.0f} s: giving up ({len(pending)} runs left)")
                 tick(note)
             else:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.scenario.config import load_scenario, parse_value
 
 _MAX_RUNS = 100_000

@@ -19,13 +19,14 @@ import socket
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harness.sweep.results import FINISHED, RunStatus, row_from_run_dir
+from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.run.result import RunStatus
+from harness.sweep.results import FINISHED, row_from_run_dir
 
 POLL_S = 0.25
 MARKER = "sweep-run.json"
@@ -65,17 +66,17 @@ def _worker_slots(n: int) -> threading.BoundedSemaphore:
         return _slots.setdefault(n, threading.BoundedSemaphore(n))
 
 
-def run_job(job: RunJob) -> dict[str, Any]:
+def run_job(job: RunJob, clock: Clock = WALL) -> dict[str, Any]:
     """The Dask task: run ``job`` (waiting for a slot first) and return its results.csv row."""
     if job.slots is None:
-        return _run(job)
+        return _run(job, clock)
     slots = _worker_slots(job.slots)
-    watch = _StopWatch(job.stop_event)
+    watch = _StopWatch(job.stop_event, clock)
     while not slots.acquire(timeout=POLL_S):
         if watch.why() is not None:
             return _row_without_summary(job, RunStatus.INTERRUPTED, "stopped before it started")
     try:
-        return _run(job)
+        return _run(job, clock)
     finally:
         slots.release()
 
@@ -95,8 +96,8 @@ def finished_row(run_dir: Path, params: Mapping[str, Any], seed: int) -> dict[st
     return row
 
 
-def _run(job: RunJob) -> dict[str, Any]:
-    watch = _StopWatch(job.stop_event)
+def _run(job: RunJob, clock: Clock) -> dict[str, Any]:
+    watch = _StopWatch(job.stop_event, clock)
     if watch.why() is not None:  # queued while the sweep was being stopped: do not start it at all
         return _row_without_summary(job, RunStatus.INTERRUPTED, "stopped before it started")
     run_dir = Path(job.run_dir)
@@ -114,7 +115,7 @@ def _run(job: RunJob) -> dict[str, Any]:
         "params": job.params,
         "command": job.argv(),
         "worker": where,
-        "started_unix_s": time.time(),
+        "started_unix_s": clock.unix_ns() / NS_PER_S,
     }
     (run_dir / MARKER).write_text(json.dumps(marker, indent=2))
     env = dict(os.environ, HARNESS_RUN_DIR=str(run_dir))
@@ -124,7 +125,7 @@ def _run(job: RunJob) -> dict[str, Any]:
         )
     status: RunStatus | None = None
     reason = ""
-    started = time.monotonic()
+    started = clock.now_ns()
     try:
         while True:
             try:
@@ -132,7 +133,7 @@ def _run(job: RunJob) -> dict[str, Any]:
                 break
             except subprocess.TimeoutExpired:
                 pass
-            if job.timeout_s is not None and time.monotonic() - started > job.timeout_s:
+            if job.timeout_s is not None and (clock.now_ns() - started) / NS_PER_S > job.timeout_s:
                 status, reason = RunStatus.TIMEOUT, f"stopped after {job.timeout_s:g} s of wall time (--run-timeout)"
             else:
                 why = watch.why()
@@ -145,7 +146,7 @@ def _run(job: RunJob) -> dict[str, Any]:
         if proc.poll() is None:  # an exception in this thread: the run must not outlive it
             _stop(proc, 0.0)
     marker["returncode"] = proc.returncode
-    marker["ended_unix_s"] = time.time()
+    marker["ended_unix_s"] = clock.unix_ns() / NS_PER_S
     (run_dir / MARKER).write_text(json.dumps(marker, indent=2))
     try:
         row = row_from_run_dir(run_dir, job.params, job.seed)
@@ -193,7 +194,8 @@ class _StopWatch:
 
     EVENT_EVERY_S = 0.5
 
-    def __init__(self, stop_event: str | None) -> None:
+    def __init__(self, stop_event: str | None, clock: Clock) -> None:
+        self.clock = clock
         self.worker: Any = None
         self.event: Any = None
         self.next_ask = 0.0
@@ -213,9 +215,9 @@ class _StopWatch:
         ts = self.worker.state.tasks.get(self.key) if self.key is not None else None
         if ts is None or ts.state in ("cancelled", "released", "forgotten"):
             return "the sweep cancelled the run"
-        if self.event is None or time.monotonic() < self.next_ask:
+        if self.event is None or self.clock.now_ns() / NS_PER_S < self.next_ask:
             return None
-        self.next_ask = time.monotonic() + self.EVENT_EVERY_S
+        self.next_ask = self.clock.now_ns() / NS_PER_S + self.EVENT_EVERY_S
         try:
             if self.event.is_set():
                 return "the sweep was stopped (Ctrl-C)"

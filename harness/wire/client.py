@@ -20,8 +20,8 @@ import socket
 import threading
 from types import TracebackType
 
-from harness.errors import SimulationError
-from harness.secrets import channel_secret
+from harness.core.errors import SimulationError
+from harness.core.secrets import channel_secret
 from harness.wire import protocol as p
 from harness.wire.transport import Address, connect, parse_address
 

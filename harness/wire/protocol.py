@@ -48,6 +48,8 @@ from typing import Annotated, Final
 
 import msgspec
 
+from harness.core.geo import Vec3
+
 PROTOCOL_VERSION: Final = 2
 """Bumped on every incompatible change of a message below."""
 
@@ -104,9 +106,6 @@ class ErrorCode(enum.IntEnum):
 
 class _Msg(msgspec.Struct, array_like=True, frozen=True, tag_field="tag"):
     """Base of every message; the tag is the first element of the encoded array."""
-
-
-Vec3 = tuple[float, float, float]
 
 
 # --- handshake -------------------------------------------------------------------------------

@@ -11,7 +11,7 @@ import os
 import socket
 from dataclasses import dataclass
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,7 +8,8 @@ import math
 
 import numpy as np
 
-from harness.autopilot.mathutil import GeoRef, quat_mul, quat_normalize, rotate, rotate_inv
+from harness.autopilot.mathutil import quat_mul, quat_normalize, rotate, rotate_inv
+from harness.core.geo import GeoRef
 from harness.fdm.frame import Baro, Gps, Imu, Mag, SensorFrame, Truth
 
 G = 9.80665

@@ -13,9 +13,9 @@ import numpy as np
 
 from harness.autopilot.api import FlightMode
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
-from harness.autopilot.mathutil import GeoRef
+from harness.core.clock import ManualClock
+from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
-from harness.simclock.clock import ManualClock
 from tests.autopilot.quadsim import QuadSim
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 from harness.autopilot.api import MavFrame, MissionItem
 from harness.autopilot.battery import Battery
 from harness.autopilot.geofence import Geofence
-from harness.autopilot.mathutil import GeoRef
 from harness.autopilot.params import Params
+from harness.core.geo import GeoRef
 
 REF = GeoRef(47.0, 8.0, 500.0)
 

@@ -10,7 +10,7 @@ import pytest
 from harness.autopilot.api import FlightMode
 from harness.autopilot.host import make_autopilots, run_autopilots
 from harness.channel import Channel, ChannelConfig
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.fdm.frame import encode_frame
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient

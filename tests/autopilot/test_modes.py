@@ -20,7 +20,7 @@ from harness.autopilot.api import (
     Result,
 )
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
-from harness.simclock.clock import ManualClock
+from harness.core.clock import ManualClock
 from tests.autopilot.quadsim import QuadSim, fly
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from harness.channel.events import Close, PeerLink, PeerState, RunFailed, Send, StepLocal, Stop, TickDone
 from harness.channel.machine import TickMachine
 from harness.channel.watchdog import Watchdog
-from harness.simclock.clock import NS_PER_S, ManualClock
+from harness.core.clock import NS_PER_S, ManualClock
 from harness.wire import protocol as p
 
 TICK_NS = 4_000_000

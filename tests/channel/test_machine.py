@@ -7,7 +7,7 @@ import pytest
 from harness.channel.events import PeerLink, PhaseState, Role, RunFailed, Send, TickState
 from harness.channel.machine import TickMachine
 from harness.channel.watchdog import JOIN, Watchdog
-from harness.simclock.clock import ManualClock
+from harness.core.clock import ManualClock
 from harness.wire import protocol as p
 
 from .rig import STALL_S, TICK_NS, Rig

@@ -4,7 +4,7 @@ injected clock passes the handshake limit, not when the wall clock does."""
 from __future__ import annotations
 
 from harness.channel import Channel, ChannelConfig, connect_child_socket
-from harness.simclock.clock import NS_PER_S, ManualClock
+from harness.core.clock import NS_PER_S, ManualClock
 from harness.wire import protocol as p
 
 

@@ -7,7 +7,7 @@ import math
 import jsbsim
 import pytest
 
-from harness.errors import SimulationError
+from harness.core.errors import SimulationError
 from harness.fdm.environment import WindConfig
 from harness.fdm.params import DEFAULT_QUAD, G_M_S2, KG_PER_SLUG, models_root
 from harness.fdm.physics import Physics, PhysicsConfig

@@ -19,7 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.autopilot.mavlink import MavlinkServer, PortsConfig, SigningConfig
 from harness.autopilot.mavlink.codec import signing_timestamp
-from harness.simclock.clock import real_monotonic_ns, real_sleep, real_time_ns
+from harness.core.clock import real_monotonic_ns, real_sleep, real_time_ns
 from tests.autopilot.quadsim import QuadSim
 
 Msg = Any

@@ -26,7 +26,7 @@ from harness.autopilot.mavlink.ardupilot.streams import ekf_flags
 from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.tcp import take_frames
 from harness.autopilot.params import Params
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2

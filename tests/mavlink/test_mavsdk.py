@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from harness.simclock.clock import real_monotonic_ns, real_sleep
+from harness.core.clock import real_monotonic_ns, real_sleep
 from tests.mavlink.conftest import Rig
 
 mavsdk = pytest.importorskip("mavsdk")

@@ -9,7 +9,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import MissionKind
-from harness.simclock.clock import real_monotonic_ns
+from harness.core.clock import real_monotonic_ns
 from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2

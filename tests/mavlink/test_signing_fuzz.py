@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.mavlink import SigningConfig
 from harness.autopilot.mavlink.codec import Codec, FrameStatus
-from harness.simclock.clock import real_time_ns
+from harness.core.clock import real_time_ns
 from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2

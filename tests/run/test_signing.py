@@ -156,7 +156,8 @@ def _watch_argv(proc: subprocess.Popen[str], seconds: float) -> set[tuple[int, b
 LAUNCH_IN_PROCESS_AUTOPILOT_PROCESS = """
 import sys
 from pathlib import Path
-from harness.scenario.launcher import Launcher, LaunchPlan, MissionPlan
+from harness.run.launcher import Launcher
+from harness.scenario.plan import LaunchPlan, MissionPlan
 plan = LaunchPlan(vehicles=1, out=Path(sys.argv[1]), missions=(MissionPlan(Path(sys.argv[2])),), duration_s=120,
                   network="builtin", autopilots="process", signing_key_file=Path(sys.argv[3]))
 sys.exit(Launcher(plan).run().exit_code)

@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 
 from harness.autopilot.firmware import Firmware
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.record.world import read_topics
-from harness.scenario import swarm
+from harness.run import swarm
 from harness.scenario.config import load_scenario
 
 MISSIONS = Path(__file__).resolve().parents[2] / "missions"

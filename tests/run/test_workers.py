@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.record.world import read_topics
-from harness.scenario.tree import parse_workers, worker_groups
+from harness.run.tree import parse_workers, worker_groups
 from tests.run.flights import MISSIONS
 
 

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.scenario import limits
-from harness.scenario.launcher import LaunchPlan, MissionPlan
 from harness.scenario.limits import check_plan, memory_estimate_mb
+from harness.scenario.plan import LaunchPlan, MissionPlan
 
 ROOT = Path(__file__).resolve().parents[2]
 NOT_ROOT = os.geteuid() != 0
@@ -184,7 +184,7 @@ def test_run_that_does_not_fit_in_memory_is_refused(monkeypatch: pytest.MonkeyPa
 
 
 def test_launcher_checks_a_plan_built_in_python(tmp_path: Path) -> None:
-    from harness.scenario.launcher import Launcher
+    from harness.run.launcher import Launcher
 
     with pytest.raises(ScenarioError, match=r"^stall_timeout_s: must be a finite number, got inf$"):
         Launcher(LaunchPlan(vehicles=1, out=tmp_path / "x", stall_timeout_s=float("inf")))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import random
 import socket
 
-from harness.scenario.ports import allocate, ephemeral_range
+from harness.run.ports import allocate, ephemeral_range
 
 
 def test_standard_ports_when_free_else_a_block_below_the_ephemeral_range() -> None:

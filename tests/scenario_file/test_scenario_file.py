@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.scenario.config import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 from harness.channel import MissionExit
-from harness.errors import ScenarioError
-from harness.scenario.launcher import VehicleSummary
-from harness.scenario.tree import fill_remote, missions_done, read_secret, secret_env
+from harness.core.errors import ScenarioError
+from harness.run.result import VehicleSummary
+from harness.run.tree import fill_remote, missions_done, read_secret, secret_env
 
 
 def test_secret_from_file_then_environment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -12,7 +12,7 @@ import pytest
 
 from harness.channel import Channel, ChannelConfig
 from harness.channel.drivers import run_fake_physics
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from harness.simclock.endpoints import VehicleEndpoints, mavsdk_url
+from harness.core.endpoints import VehicleEndpoints, mavsdk_url
 from harness.simclock.mavsdk_compat import detect_api
 
 EP = VehicleEndpoints(udp_port=14601, tcp_port=15761)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient
 
@@ -72,7 +72,7 @@ def test_channel_secret_on_the_command_line_warns_that_ps_shows_it(tmp_path: Pat
 
 
 def test_unreadable_or_empty_secret_file_is_one_line(tmp_path: Path) -> None:
-    from harness.secrets import channel_secret
+    from harness.core.secrets import channel_secret
 
     (tmp_path / "empty").write_text("\n")
     with pytest.raises(ScenarioError, match=r"^--secret-file: .*empty is empty$"):

@@ -131,13 +131,15 @@ def test_runs_per_worker_caps_the_runs_at_once_in_a_worker(monkeypatch: pytest.M
     import threading
     import time
 
+    from harness.core.clock import WALL, Clock
     from harness.sweep import task
 
     lock = threading.Lock()
     now = [0]
     peak = [0]
 
-    def fake_run(job: task.RunJob) -> dict[str, object]:
+    def fake_run(job: task.RunJob, clock: Clock) -> dict[str, object]:
+        assert clock is WALL
         with lock:
             now[0] += 1
             peak[0] = max(peak[0], now[0])

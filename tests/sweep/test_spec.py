@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 from harness.scenario.config import load_scenario, parse_value
 from harness.sweep.spec import build_sweep, parse_seeds, run_name, split_values
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from harness.pytest_plugin import SweepRecord
+from harness.run.result import RunStatus
 from harness.sweep.results import read_results
 
 pytestmark = pytest.mark.sim
@@ -53,11 +54,12 @@ def sweep_cmd(scenario: Path, out: Path, *args: str) -> list[str]:
     return [sys.executable, "-m", "harness.cli", "sweep", str(scenario), "--out", str(out), *args]
 
 
-def _status(summary: Path) -> str:
+def _status(run_dir: Path) -> str | None:
+    """The status a run's summary.json says now (None: not written yet, or caught mid-replace)."""
     try:
-        return str(json.loads(summary.read_text())["status"])
+        return str(json.loads((run_dir / "summary.json").read_text())["status"])
     except (OSError, ValueError, KeyError):
-        return "running"  # being written
+        return None
 
 
 def interrupt_when(proc: subprocess.Popen[str], out: Path, ok_runs: int, running: int, timeout_s: float = 90) -> float:
@@ -65,9 +67,9 @@ def interrupt_when(proc: subprocess.Popen[str], out: Path, ok_runs: int, running
     Ctrl-C the sweep; returns the seconds until the sweep and every process of its runs were gone."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        status = {p.parent: _status(p) for p in out.glob("*/summary.json")}  # "running" while a run goes on
-        done = [d for d, s in status.items() if s == "ok"]
-        going = [d.parent for d in out.glob("*/mission-0.stdout") if status.get(d.parent, "running") == "running"]
+        done = [p for p in out.glob("*/summary.json") if _status(p.parent) == RunStatus.OK]
+        # summary.json is written from the start with "running" (record/status.py): a run under way says so
+        going = [d for d in out.glob("*/mission-0.stdout") if _status(d.parent) in (None, RunStatus.RUNNING)]
         if len(done) >= ok_runs and len(going) >= running:
             break
         assert proc.poll() is None, proc.communicate()

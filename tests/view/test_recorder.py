@@ -5,15 +5,16 @@ holds (``Autopilot`` objects, as in-process autopilots are)."""
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import pytest
 
 from harness.autopilot.api import MavCmd, MavFrame, MissionItem, MissionKind
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+from harness.core.geo import WGS84_A_M, flat_point
 from harness.record.links import ratio_color
-from harness.record.rrd import R_EARTH_M, to_ned
+from harness.record.rrd import to_ned
+from harness.record.sample import VehicleSample
 from tests.view.test_rrd import read_rrd
 
 pytest.importorskip("rerun", reason="the view extra is not installed (pip install 'uav-harness[view]')")
@@ -23,10 +24,7 @@ ORIGIN = (47.397742, 8.545594, 488.0)
 
 def latlon(north_m: float, east_m: float) -> tuple[float, float]:
     lat0, lon0, _ = ORIGIN
-    return (
-        lat0 + math.degrees(north_m / R_EARTH_M),
-        lon0 + math.degrees(east_m / (R_EARTH_M * math.cos(math.radians(lat0)))),
-    )
+    return flat_point(lat0, lon0, north_m, east_m, WGS84_A_M)
 
 
 def test_links_drops_mission_and_geofence_are_recorded(tmp_path: Path) -> None:
@@ -68,7 +66,11 @@ def test_links_drops_mission_and_geofence_are_recorded(tmp_path: Path) -> None:
     for k in range(101):  # 2 s at 50 Hz, three vehicles 10 m apart
         t_ns = k * 20_000_000
         for i in range(3):
-            rec.vehicle(t_ns, i, (0.0, 10.0 * i, -5.0), (1.0, 0, 0, 0), (0, 0, 0), 0, 0, 0, (0,) * 4, False, False)
+            rec.vehicle(
+                VehicleSample(
+                    t_ns, i, (0.0, 10.0 * i, -5.0), (1.0, 0, 0, 0), (0, 0, 0), 0, 0, 0, (0,) * 4, False, False
+                )
+            )
         rec.tick(t_ns, 5 * k, t_ns / 1e9 / 10, 10.0)
     rec.close()
 

@@ -9,6 +9,7 @@ import pytest
 from harness import cli
 from harness.record import sink, viewer
 from harness.record.links import LinkTracker, ratio_color
+from harness.record.sample import VehicleSample
 
 
 def test_delivery_ratio_per_pair_over_a_sliding_window() -> None:
@@ -42,7 +43,9 @@ def test_without_rerun_a_run_records_mcap_only_and_harness_view_says_how_to_get_
     monkeypatch.setattr(viewer, "rerun_available", lambda: False)
     world = sink.open_world(tmp_path, 0, 1, (47.0, 8.0, 400.0))
     world.vehicle(
-        0, 0, (0.0, 0.0, -1.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 47.0, 8.0, 401.0, (0.0,) * 4, False, False
+        VehicleSample(
+            0, 0, (0.0, 0.0, -1.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 47.0, 8.0, 401.0, (0.0,) * 4, False, False
+        )
     )
     world.close()
     assert (tmp_path / "world.mcap").is_file() and not (tmp_path / "world.rrd").exists()

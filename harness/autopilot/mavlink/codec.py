@@ -22,7 +22,7 @@ from typing import TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 
 MAVLinkMessage: TypeAlias = mavlink2.MAVLink_message  # pymavlink is untyped: this is Any to mypy
 

@@ -18,50 +18,71 @@ autopilots together.)
 from __future__ import annotations
 
 import contextlib
+import enum
 import logging
 import os
 import selectors
 import threading
 from collections import deque
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import Protocol
 
-from harness.simclock.clock import real_monotonic_ns
-
-if TYPE_CHECKING:
-    from harness.autopilot.mavlink.server import MavlinkServer
+from harness.autopilot.mavlink.transport import Link
+from harness.core.clock import WALL, Clock
 
 log = logging.getLogger(__name__)
 
 _OP_TIMEOUT_S = 5.0
 
 
-class MavlinkHub:
-    """Serves any number of :class:`MavlinkServer` on one thread. ``add`` them, then ``start()``."""
+class _Op(enum.Enum):
+    ADD = "add"
+    REMOVE = "remove"
 
-    def __init__(self, name: str = "mavlink") -> None:
+
+class HubMember(Protocol):
+    """What the hub uses of a server it serves (``harness.autopilot.mavlink.server.HubMember``)."""
+
+    vehicle: int
+
+    @property
+    def links(self) -> Sequence[Link]: ...
+    @property
+    def next_wake_ns(self) -> int: ...
+    def attached(self, hub: MavlinkHub) -> None: ...
+    def receive(self, link: int, now: int) -> None: ...
+    def service(self, now: int) -> None: ...
+
+
+class MavlinkHub:
+    """Serves any number of MAVLink servers (:class:`HubMember`) on one thread. ``add`` them, then ``start()``."""
+
+    def __init__(self, name: str = "mavlink", clock: Clock = WALL) -> None:
         self.name = name
-        self._servers: dict[MavlinkServer, None] = {}
+        self.clock = clock
+        """The wall clock of its servers' deadlines (give each server the same)."""
+        self._servers: dict[HubMember, None] = {}
         """In the order added (a dict: membership is tested for every server served)."""
         self._sel = selectors.DefaultSelector()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
-        self._ops: deque[tuple[str, MavlinkServer, threading.Event]] = deque()
+        self._ops: deque[tuple[_Op, HubMember, threading.Event]] = deque()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
 
     # ------------------------------------------------------------------ membership
-    def add(self, server: MavlinkServer) -> None:
+    def add(self, server: HubMember) -> None:
         """Serve ``server`` (from any thread; applied by the hub thread when it runs)."""
-        self._apply_or_queue("add", server)
+        self._apply_or_queue(_Op.ADD, server)
 
-    def remove(self, server: MavlinkServer) -> None:
+    def remove(self, server: HubMember) -> None:
         """Stop serving ``server``; on return the hub no longer touches its sockets."""
-        self._apply_or_queue("remove", server)
+        self._apply_or_queue(_Op.REMOVE, server)
 
-    def _apply_or_queue(self, op: str, server: MavlinkServer) -> None:
+    def _apply_or_queue(self, op: _Op, server: HubMember) -> None:
         thread = self._thread
         if thread is None or not thread.is_alive() or thread is threading.current_thread():
             self._apply(op, server)
@@ -70,10 +91,10 @@ class MavlinkHub:
         self._ops.append((op, server, done))
         self._signal()
         if not done.wait(_OP_TIMEOUT_S):
-            log.warning("%s: the hub thread did not %s vehicle %d in time", self.name, op, server.vehicle)
+            log.warning("%s: the hub thread did not %s vehicle %d in time", self.name, op.value, server.vehicle)
 
-    def _apply(self, op: str, server: MavlinkServer) -> None:
-        if op == "add":
+    def _apply(self, op: _Op, server: HubMember) -> None:
+        if op is _Op.ADD:
             if server in self._servers:
                 return
             self._servers[server] = None
@@ -128,14 +149,14 @@ class MavlinkHub:
                 self._stop.wait(0.01)
 
     def _once(self) -> None:
-        now = real_monotonic_ns()
+        now = self.clock.now_ns()
         servers = self._servers
         deadline = min((s.next_wake_ns for s in servers), default=now + 1_000_000_000)
         events = self._sel.select(max(0.0, (deadline - now) / 1e9))
         if self._stop.is_set():
             return
-        now = real_monotonic_ns()
-        todo: dict[MavlinkServer, None] = {}
+        now = self.clock.now_ns()
+        todo: dict[HubMember, None] = {}
         for key, _mask in events:
             if key.data is None:
                 with contextlib.suppress(OSError):

@@ -23,6 +23,7 @@ from harness.autopilot.api import (
     VehicleState,
 )
 from harness.autopilot.mavlink.messages import MAVLinkMessage
+from harness.core.geo import flat_offset_m
 
 _POS = (
     mavlink2.POSITION_TARGET_TYPEMASK_X_IGNORE,
@@ -99,7 +100,6 @@ def position_target(m: MAVLinkMessage) -> OffboardSetpoint | str:
     return sp
 
 
-_EARTH_R_M = 6_371_000.0
 _GLOBAL_FRAMES = {0: False, 5: False, 3: True, 6: True}
 """SET_POSITION_TARGET_GLOBAL_INT frames -> altitude relative to home?"""
 
@@ -129,8 +129,7 @@ def global_target(m: MAVLinkMessage, state: VehicleState) -> OffboardSetpoint | 
                 return "relative-altitude setpoint without a home position"
             alt += state.home.alt_amsl_m
         n0, e0, d0 = state.pos_ned_m
-        dn = math.radians(lat - state.lat_deg) * _EARTH_R_M
-        de = math.radians(lon - state.lon_deg) * _EARTH_R_M * math.cos(math.radians(state.lat_deg))
+        dn, de = flat_offset_m(state.lat_deg, state.lon_deg, lat, lon)
         local = (n0 + dn, e0 + de, d0 - (alt - state.alt_amsl_m))
     if local is None and vel is None and acc is None:
         return "offboard setpoint ignores position, velocity and acceleration"

@@ -1,7 +1,7 @@
 """Firmware personalities: what a vehicle's MAVLink side says it is, on one flight core.
 
 The services of ``harness.autopilot.mavlink`` (commands, parameters, mission, telemetry) speak the PX4
-dialect. A :class:`Dialect` is the thin layer of one firmware over them, made per vehicle by
+dialect. A :class:`~harness.autopilot.mavlink.dialect_api.Dialect` is the thin layer of one firmware over them, made per vehicle by
 :func:`make_dialect`:
 
 - ``api``: the autopilot as the services see it (ArduCopter: mission seq 0 = home, ArduPilot parameter
@@ -21,47 +21,17 @@ module with a ``Dialect`` class and a line in ``_FACTORIES``.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Protocol
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, Severity, VehicleState
+from harness.autopilot.api import AutopilotApi, VehicleState
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
-from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule, heartbeat_message
+from harness.autopilot.mavlink.dialect_api import Dialect, DialectHost
+from harness.autopilot.mavlink.heartbeat import heartbeat_message
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
-from harness.autopilot.mavlink.telemetry import DEFAULT_INTERVALS_NS, Builder, StreamScheduler
+from harness.autopilot.mavlink.telemetry import DEFAULT_INTERVALS_NS, Builder
 from harness.autopilot.mavlink.version import autopilot_version
-
-
-class DialectHost(Protocol):
-    """What a dialect may use of its server (the server thread calls the dialect, under the server lock)."""
-
-    streams: StreamScheduler
-    heartbeat: HeartbeatSchedule
-
-    @property
-    def mav(self) -> mavlink2.MAVLink:
-        """The encoder (its ``*_encode`` methods build messages)."""
-        ...
-
-    def say(self, severity: Severity, text: str, now: int) -> None: ...
-    def link_name(self, link: int) -> str: ...
-
-
-class Dialect(Protocol):
-    api: AutopilotApi
-    mission_float_form: bool
-    param_bytewise: bool
-    builders: Mapping[int, Builder]
-    stream_defaults: Mapping[int, int]
-
-    def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None: ...
-    def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage: ...
-    def autopilot_version(self, mav: mavlink2.MAVLink, sysid: int) -> MAVLinkMessage: ...
-    def command_handlers(self) -> Mapping[int, Callable[[CommandIn], CommandOutcome]]: ...
-    def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out] | None: ...
-    def tick(self, state: VehicleState, now: int) -> list[Out]: ...
 
 
 class Px4Dialect:
@@ -104,9 +74,6 @@ _FACTORIES: dict[Firmware, Callable[[AutopilotApi, int], Dialect]] = {
     Firmware.PX4: lambda api, _sysid: Px4Dialect(api),
     Firmware.ARDUPILOT: _ardupilot,
 }
-
-
-__all__ = ["Dialect", "DialectHost", "Firmware", "Px4Dialect", "core_param_defaults", "make_dialect"]
 
 
 def make_dialect(firmware: Firmware, api: AutopilotApi, sysid: int) -> Dialect:

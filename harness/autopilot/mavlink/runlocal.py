@@ -18,8 +18,8 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from harness.autopilot.mavlink.codec import SigningConfig
-from harness.secrets import read_signing_key
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+from harness.core.clock import NS_PER_S, real_monotonic_ns
+from harness.core.secrets import read_signing_key
 
 Address = tuple[str, int]
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import AutopilotApi, FlightMode, GeoPoint, Result, Severity, VehicleState
+from harness.autopilot.firmware import Firmware
 from harness.autopilot.mavlink import ftp
 from harness.autopilot.mavlink.codec import Codec, FrameStatus, SigningConfig
 from harness.autopilot.mavlink.commands import CommandIn, CommandService
@@ -39,13 +40,13 @@ from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, stat
 from harness.autopilot.mavlink.mission import MissionService, ProgressTracker
 from harness.autopilot.mavlink.offboard import handle_setpoint
 from harness.autopilot.mavlink.parameters import ParamService
-from harness.autopilot.mavlink.personality import Firmware, make_dialect
+from harness.autopilot.mavlink.personality import make_dialect
 from harness.autopilot.mavlink.pilot import PILOT_IDS, handle_pilot
 from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
 from harness.autopilot.mavlink.transport import Link, PortsConfig, UdpLink
-from harness.simclock.clock import real_monotonic_ns, real_time_ns
-from harness.simclock.endpoints import SETTLE_PREFIX
+from harness.core.clock import WALL, Clock
+from harness.core.endpoints import SETTLE_PREFIX
 
 log = logging.getLogger(__name__)
 
@@ -103,7 +104,7 @@ class MavlinkServer:
     """PX4-dialect MAVLink endpoint of one vehicle (system id ``vehicle + 1``, component 1).
 
     ``tap`` is called (on the server thread) with every frame sent and every valid frame received: the
-    tlog writer. ``wall_ns`` / ``unix_ns`` are the wall clocks (monotonic, and Unix time for signing).
+    tlog writer. ``clock``: the wall clock its timers, heartbeats and signing timestamps run on (its hub's).
     ``home_on_first_fix``: see ``_set_home_at_first_fix``. ``firmware``: the personality it presents
     (``personality.py``); the services see the autopilot through its dialect (``self.api``).
     """
@@ -115,8 +116,7 @@ class MavlinkServer:
         ports: PortsConfig | None = None,
         signing: SigningConfig | None = None,
         *,
-        wall_ns: Callable[[], int] = real_monotonic_ns,
-        unix_ns: Callable[[], int] = real_time_ns,
+        clock: Clock = WALL,
         tap: Callable[[bytes], None] | None = None,
         home_on_first_fix: bool = True,
         firmware: Firmware = Firmware.PX4,
@@ -132,14 +132,15 @@ class MavlinkServer:
         self.sysid = vehicle + 1
         self.compid = 1
         self.ports = ports or PortsConfig()
-        self._wall_ns = wall_ns
+        self.clock = clock
+        self._wall_ns = clock.now_ns
         self._tap = tap
         self._home_on_first_fix = home_on_first_fix
         self._home_try_ns: int | None = None
         self._stepping = False
         self._first_t_ns: int | None = None
         """True while the autopilot's stepping thread services this server (the bell), at sim time."""
-        self.codec = Codec(self.sysid, self.compid, signing, unix_ns)
+        self.codec = Codec(self.sysid, self.compid, signing, clock.unix_ns)
         mav = self.codec.mav
         self.links: list[Link] = [UdpLink(cfg) for cfg in self.ports.links(vehicle)]
         tcp = self.ports.tcp_local(vehicle)
@@ -185,7 +186,7 @@ class MavlinkServer:
         """Serve on a thread of its own (a hub with just this server)."""
         if self._hub is not None:
             raise RuntimeError("MavlinkServer already started")
-        hub = MavlinkHub(name=f"mavlink-{self.vehicle}")
+        hub = MavlinkHub(name=f"mavlink-{self.vehicle}", clock=self.clock)
         hub.add(self)
         hub.start()
         self._own_hub = True

@@ -20,7 +20,7 @@ import threading
 from collections.abc import Iterator
 
 from harness.autopilot.mavlink.transport import Address
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 
 log = logging.getLogger(__name__)
 

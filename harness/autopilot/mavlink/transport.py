@@ -16,8 +16,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
-from harness.errors import ScenarioError
-from harness.simclock.endpoints import LISTEN_HELLO
+from harness.core.endpoints import LISTEN_HELLO
+from harness.core.errors import ScenarioError
 
 log = logging.getLogger(__name__)
 

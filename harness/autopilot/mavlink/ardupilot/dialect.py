@@ -20,7 +20,6 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mavlink2
@@ -53,13 +52,12 @@ from harness.autopilot.mavlink.ardupilot.streams import (
     ekf_status_report,
 )
 from harness.autopilot.mavlink.commands import FORCE_MAGIC, CommandIn, CommandOutcome
+from harness.autopilot.mavlink.dialect_api import DialectHost
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, is_set
 from harness.autopilot.mavlink.telemetry import SENSOR_GEOFENCE, Builder, sys_status
 from harness.autopilot.params import Params
 from harness.autopilot.validate import finite
-
-if TYPE_CHECKING:
-    from harness.autopilot.mavlink.personality import DialectHost
+from harness.core.geo import flat_offset_m
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +70,6 @@ PREARM_REPORT_NS = 30_000_000_000
 """ArduPilot repeats its failing pre-arm check every 30 s while disarmed ..."""
 PREARM_FIRST_NS = 3_000_000_000
 """... and the first report waits for 3 s of sim time (sensors and estimator starting up: no IMU data yet at t=0)."""
-_EARTH_R_M = 6_371_000.0
 
 CAPABILITIES = (
     _M.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
@@ -420,8 +417,7 @@ class CopterDialect:
             self._set_yaw(self._yaw_hold)  # ArduCopter keeps the CONDITION_YAW heading within GUIDED
         if self._roi is not None and state.armed and state.in_air:
             lat, lon, _alt = self._roi
-            dn = math.radians(lat - state.lat_deg) * _EARTH_R_M
-            de = math.radians(lon - state.lon_deg) * _EARTH_R_M * math.cos(math.radians(state.lat_deg))
+            dn, de = flat_offset_m(state.lat_deg, state.lon_deg, lat, lon)
             if math.hypot(dn, de) > 1.0:
                 self._set_yaw(math.atan2(de, dn))
         booting = state.t_ns < PREARM_FIRST_NS

@@ -20,8 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import MavFrame, OffboardFrame, OffboardSetpoint, VehicleState
 from harness.autopilot.mavlink.messages import MAVLinkMessage
-
-_EARTH_R_M = 6_371_000.0
+from harness.core.geo import flat_offset_m, flat_point
 
 _POS_IGNORE = 0b111
 _VEL_IGNORE = 0b111 << 3
@@ -60,9 +59,7 @@ class Velocity:
 def geo_of_local(state: VehicleState, ned: tuple[float, float, float]) -> tuple[float, float, float]:
     """A point of the core's local frame as (lat, lon, alt AMSL), flat earth around the vehicle."""
     n0, e0, d0 = state.pos_ned_m
-    lat = state.lat_deg + math.degrees((ned[0] - n0) / _EARTH_R_M)
-    coslat = max(math.cos(math.radians(state.lat_deg)), 1e-6)
-    lon = state.lon_deg + math.degrees((ned[1] - e0) / (_EARTH_R_M * coslat))
+    lat, lon = flat_point(state.lat_deg, state.lon_deg, ned[0] - n0, ned[1] - e0)
     return lat, lon, state.alt_amsl_m - (ned[2] - d0)
 
 
@@ -136,8 +133,7 @@ def global_target(m: MAVLinkMessage, state: VehicleState) -> Goto | Velocity | s
     local = None
     if point is not None:
         n0, e0, d0 = state.pos_ned_m
-        dn = math.radians(point[0] - state.lat_deg) * _EARTH_R_M
-        de = math.radians(point[1] - state.lon_deg) * _EARTH_R_M * math.cos(math.radians(state.lat_deg))
+        dn, de = flat_offset_m(state.lat_deg, state.lon_deg, point[0], point[1])
         local = (n0 + dn, e0 + de, d0 - (point[2] - state.alt_amsl_m))
     return Velocity(OffboardSetpoint(local, (m.vx, m.vy, m.vz), None, yaw, yaw_rate))
 

@@ -14,6 +14,11 @@ import os
 import re
 from dataclasses import dataclass
 
+PX4_API_BASE = 14580
+"""PX4 SITL's own MAVLink port for offboard APIs (instance ``i`` listens on ``14580 + i``)."""
+GCS_PORT = 14550
+"""The ground station's UDP port every vehicle sends to."""
+
 LISTEN_PORTS = frozenset({14540, 14550, 14551})
 """UDP ports a script listens on for its vehicle (``udpin:0.0.0.0:14540``, ``127.0.0.1:14550``)."""
 CONNECT_UDP_PORTS = frozenset({14580})

@@ -29,13 +29,13 @@ from pathlib import Path
 
 from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
-from harness.errors import ScenarioError, SimulationError
-from harness.scenario import tree
-from harness.scenario.children import Children
-from harness.scenario.launcher import MissionPlan
-from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
-from harness.scenario.swarm import mission_argv
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep
+from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.core.errors import ScenarioError, SimulationError
+from harness.run import tree
+from harness.run.children import Children
+from harness.run.ports import GCS_PORT, PX4_API_BASE, allocate
+from harness.run.swarm import mission_argv
+from harness.scenario.plan import MissionPlan
 
 log = logging.getLogger(__name__)
 
@@ -99,17 +99,18 @@ def default_name() -> str:
     return f"join:{socket.gethostname()}:{os.getpid()}"
 
 
-def run_join(plan: JoinPlan) -> JoinResult:
-    """Join the run at ``plan.parent`` and fly its vehicles until the root ends the run."""
+def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
+    """Join the run at ``plan.parent`` and fly its vehicles until the root ends the run (``clock``: the wall
+    clock of its retries and waits)."""
     if plan.vehicles < 1 or plan.first_vehicle < 0:
         raise ScenarioError(
             f"harness join: need --first-vehicle >= 0 and --vehicles >= 1, got {plan.first_vehicle}, {plan.vehicles}"
         )
     plan.out.mkdir(parents=True, exist_ok=True)
-    channel = _connect(plan)
+    channel = _connect(plan, clock)
     message = ""
     last = plan.indices[-1]
-    with allocate(last + 1, PX4_API_BASE, GCS_PORT) as ports, Children(plan.out) as sup:
+    with allocate(last + 1, PX4_API_BASE, GCS_PORT) as ports, Children(plan.out, clock=clock) as sup:
         try:
             env = tree.secret_env(
                 dict(os.environ, HARNESS_CHANNEL=channel.address, HARNESS_RUN_DIR=str(plan.out)), plan.secret
@@ -119,6 +120,7 @@ def run_join(plan: JoinPlan) -> JoinResult:
                 lambda: len(channel.subscribers()) >= missions,
                 60.0,
                 f"only some of the {missions} missions started (see {plan.out}/*.stderr)",
+                clock,
             )
             sup.start("autopilot", _autopilot_argv(plan, channel.address, ports.api_base, ports.gcs), env=env)
             if plan.progress is not None:
@@ -134,10 +136,10 @@ def run_join(plan: JoinPlan) -> JoinResult:
     return JoinResult({i: exits.get(i) for i, m in zip(plan.indices, plan.missions, strict=False) if m}, message)
 
 
-def _connect(plan: JoinPlan) -> Channel:
+def _connect(plan: JoinPlan, clock: Clock) -> Channel:
     """The child channel, connected to the root: retried while nothing listens there yet (the root may be
     started after this command), for ``connect_timeout_s``; a refusal (wrong secret, taken vehicles) is final."""
-    end = real_monotonic_ns() + int(plan.connect_timeout_s * NS_PER_S)
+    end = clock.now_ns() + int(plan.connect_timeout_s * NS_PER_S)
     while True:
         channel = Channel(
             ChannelConfig(
@@ -151,9 +153,9 @@ def _connect(plan: JoinPlan) -> Channel:
             return channel.start()
         except Exception as exc:  # refused, wrong secret, no such host: one line
             channel.close("could not join")
-            if "cannot reach the channel" not in str(exc) or real_monotonic_ns() > end:
+            if "cannot reach the channel" not in str(exc) or clock.now_ns() > end:
                 raise SimulationError(f"harness join: cannot join the run at {plan.parent}: {exc}") from None
-        real_sleep(0.5)
+        clock.sleep_ns(NS_PER_S // 2)
 
 
 def _start_missions(plan: JoinPlan, sup: Children, address: str, env: dict[str, str], api_base: int) -> int:
@@ -198,12 +200,12 @@ def _autopilot_argv(plan: JoinPlan, address: str, api_base: int, gcs: int) -> li
     ]
 
 
-def _wait(predicate: Callable[[], bool], timeout_s: float, why: str) -> None:
-    end = real_monotonic_ns() + int(timeout_s * NS_PER_S)
+def _wait(predicate: Callable[[], bool], timeout_s: float, why: str, clock: Clock) -> None:
+    end = clock.now_ns() + int(timeout_s * NS_PER_S)
     while not predicate():
-        if real_monotonic_ns() > end:
+        if clock.now_ns() > end:
             raise SimulationError(f"harness join: {why}")
-        real_sleep(0.02)
+        clock.sleep_ns(20_000_000)
 
 
 def _supervise(channel: Channel, sup: Children) -> str:

@@ -26,11 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from harness.errors import SimulationError
-
-PX4_API_BASE = 14580
-"""PX4 SITL's own MAVLink port for offboard APIs (instance ``i`` listens on ``14580 + i``)."""
-GCS_PORT = 14550
+from harness.core.endpoints import GCS_PORT, PX4_API_BASE
+from harness.core.errors import SimulationError
 
 
 @dataclass

@@ -8,7 +8,7 @@ import signal
 import subprocess
 from pathlib import Path
 
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns
+from harness.core.clock import NS_PER_S, WALL, Clock
 
 
 def _die_with_parent() -> None:
@@ -30,9 +30,10 @@ class Children:
     ``stop()`` each group gets SIGTERM, then SIGKILL after ``grace_s``. Nothing outlives the run.
     """
 
-    def __init__(self, run_dir: Path, grace_s: float = 2.0) -> None:
+    def __init__(self, run_dir: Path, grace_s: float = 2.0, clock: Clock = WALL) -> None:
         self.run_dir = run_dir
         self.grace_s = grace_s
+        self.clock = clock
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self._reported: set[str] = set()
 
@@ -67,9 +68,9 @@ class Children:
         for proc in live:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.killpg(proc.pid, signal.SIGTERM)
-        deadline = real_monotonic_ns() + int(self.grace_s * NS_PER_S)
+        deadline = self.clock.now_ns() + int(self.grace_s * NS_PER_S)
         for proc in live:
-            left = max(0.0, (deadline - real_monotonic_ns()) / NS_PER_S)
+            left = max(0.0, (deadline - self.clock.now_ns()) / NS_PER_S)
             try:
                 proc.wait(left)
             except subprocess.TimeoutExpired:

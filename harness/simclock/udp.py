@@ -18,8 +18,9 @@ from __future__ import annotations
 import ipaddress
 from typing import Any
 
+from harness.core.endpoints import VehicleEndpoints, udp_listen_redirected
 from harness.simclock import simsocket
-from harness.simclock.endpoints import VehicleEndpoints, udp_listen_redirected
+from harness.simclock.installed import INSTALLED
 from harness.simclock.runtime import SimRuntime
 from harness.simclock.simsocket import SimSocket
 from harness.wire.protocol import BROADCAST
@@ -28,8 +29,6 @@ _original_socket = simsocket._original_socket
 
 RADIO_NET = ipaddress.ip_network("10.42.0.0/24")
 BROADCAST_ADDR = "10.42.0.255"
-
-_rt: SimRuntime | None = None
 
 
 def radio_address(vehicle: int) -> str:
@@ -54,7 +53,7 @@ class RadioSocket(SimSocket):
     _radio_port: int | None = None
 
     def bind(self, address: Any) -> None:
-        if _rt is not None and self._is_inet_dgram() and isinstance(address, tuple):
+        if INSTALLED.sockets is not None and self._is_inet_dgram() and isinstance(address, tuple):
             host, port = address[0], int(address[1])
             wildcard = host in ("", "0.0.0.0") and not udp_listen_redirected(host, port)
             if wildcard or _radio_host(host) is not None:
@@ -68,20 +67,22 @@ class RadioSocket(SimSocket):
     def sendto(self, data: Any, *args: Any) -> int:
         address = args[-1]
         dst = _radio_host(address[0]) if isinstance(address, tuple) else None
-        if dst is None or _rt is None:
+        rt = INSTALLED.sockets
+        if dst is None or rt is None:
             return super().sendto(data, *args)
         payload = bytes(data)
-        _rt.queue_packet(dst, int(address[1]), payload)
+        rt.queue_packet(dst, int(address[1]), payload)
         return len(payload)
 
     def _sim_ready(self) -> bool:
-        return self._radio_port is not None and _rt is not None and _rt.has_delivery(self._radio_port)
+        rt = INSTALLED.sockets
+        return self._radio_port is not None and rt is not None and rt.has_delivery(self._radio_port)
 
     def _waits_on_inbox(self) -> bool:
         return self._radio_port is not None
 
     def recvfrom(self, bufsize: int, flags: int = 0) -> tuple[bytes, Any]:
-        rt, port = _rt, self._radio_port
+        rt, port = INSTALLED.sockets, self._radio_port
         if port is None or rt is None:
             return super().recvfrom(bufsize, flags)
 
@@ -94,19 +95,15 @@ class RadioSocket(SimSocket):
         return self._blocking(radio_or_kernel)
 
     def recv(self, bufsize: int, flags: int = 0) -> bytes:
-        if self._radio_port is None or _rt is None:
+        if self._radio_port is None or INSTALLED.sockets is None:
             return super().recv(bufsize, flags)
         return self.recvfrom(bufsize, flags)[0]
 
 
 def install(rt: SimRuntime, ep: VehicleEndpoints | None = None) -> None:
     """Sockets created from now on are :class:`RadioSocket` (mission processes only)."""
-    global _rt
-    _rt = rt
     simsocket.install(rt, ep, RadioSocket)
 
 
 def uninstall() -> None:
-    global _rt
-    _rt = None
     simsocket.uninstall()

@@ -2,7 +2,7 @@
 
 The root (``harness run --vehicles N --remote-vehicles M --accept tcp://0.0.0.0:PORT``) simulates the
 physics of all N + M vehicles and flies vehicles 0…N-1 itself; vehicles N…N+M-1 are flown by the autopilots
-of child channels that join over the network (``harness join``, :mod:`harness.scenario.join`), which bring
+of child channels that join over the network (``harness join``, :mod:`harness.run.join`), which bring
 their own missions. So the summary, ``world.mcap`` / ``world.rrd`` and the plots of the run have every
 vehicle of the tree (the ground truth is the root's), and each child's missions' exit codes reach the root
 in its ANNOUNCE. Listening off loopback needs the shared secret, which is read from a file
@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from harness.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 
 SECRET_ENV = "HARNESS_CHANNEL_SECRET"
 

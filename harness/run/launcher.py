@@ -20,149 +20,25 @@ import os
 import sys
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
-from harness.autopilot.firmware import Firmware, firmware_of
+from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
-from harness.errors import ScenarioError, SimulationError
-from harness.fdm.link import NativeLink
+from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.core.errors import ScenarioError, SimulationError
+from harness.record.sample import VehicleSample, WorldEvent
 from harness.record.sink import WorldSink, open_world
-from harness.record.status import Checkpoint, write_json
-from harness.scenario import swarm, tree
-from harness.scenario.children import Children
+from harness.record.status import Checkpoint
+from harness.run import swarm, tree
+from harness.run.children import Children
+from harness.run.link import NativeLink
+from harness.run.ports import allocate
+from harness.run.result import RunResult, RunStatus, VehicleSummary, write_summary
 from harness.scenario.limits import check_plan
-from harness.scenario.ports import GCS_PORT, PX4_API_BASE, allocate
-from harness.simclock.clock import NS_PER_S, real_monotonic_ns, real_sleep, real_time_ns
+from harness.scenario.plan import AutopilotPlacement, LaunchPlan, MissionPlan, NetworkKind
 from harness.wire import protocol as p
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class MissionPlan:
-    script: Path
-    args: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class LaunchPlan:
-    """Everything a run needs, already validated (built from a scenario file or the command line)."""
-
-    vehicles: int
-    out: Path
-    missions: tuple[MissionPlan | None, ...] = ()
-    """Per vehicle (index i), or shorter: vehicles past the end fly no mission."""
-    swarm_mission: MissionPlan | None = None
-    """One script that commands every vehicle (``HARNESS_VEHICLES``; :mod:`harness.scenario.swarm`)."""
-    remote_vehicles: int = 0
-    """Vehicles ``vehicles …`` ``vehicles + remote_vehicles - 1``: physics here, flown by child channels that
-    join on ``listen`` (``harness join``; :mod:`harness.scenario.tree`)."""
-    listen: str | None = None
-    """The root channel's address (default: a free loopback port); off loopback it needs ``secret``."""
-    secret: bytes | None = None
-    join_timeout_s: float = 600.0
-    workers: int = 1
-    """Processes that fly the vehicles' autopilots: this one and ``workers - 1`` autopilot hosts, each with
-    an equal share of the vehicles (:func:`harness.scenario.tree.worker_groups`)."""
-    seed: int = 0
-    physics_hz: float = 1000.0
-    tick_hz: float = 250.0
-    phase_every: int = 5
-    speed: float | None = None
-    """Real-time factor to pace at; None = as fast as possible."""
-    duration_s: float | None = None
-    network: str = "none"
-    network_params: dict[str, Any] = field(default_factory=dict)
-    stall_timeout_s: float = 30.0
-    origin: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
-    wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    turbulence: float = 0.0
-    gps: str = "px4-sitl"
-    """GPS error model, a key of ``harness.fdm.sensors.GPS_PROFILES``."""
-    sensor_noise: bool = True
-    """False: ideal sensors (rates and latency stay)."""
-    spawn_ned_m: tuple[tuple[float, float, float], ...] | None = None
-    params: tuple[dict[str, float], ...] = ()
-    api_port_base: int = PX4_API_BASE
-    """Vehicle ``i`` listens for its mission on UDP ``api_port_base + i`` (PX4 SITL's 14580 + i when free)."""
-    gcs_port: int = GCS_PORT
-    api_remote_base: int = 0
-    """Vehicle ``i`` also sends to UDP ``api_remote_base + i`` unasked (``harness sitl``: 14540, where hand-run
-    MAVSDK scripts listen); 0 = only to the peers that spoke to it (``harness run``: its own missions)."""
-    record_hz: float = 50.0
-    pause_at_s: float | None = None
-    """Stand the clock still once sim time reaches this, for ``pause_wall_s`` of wall time (stall tests)."""
-    pause_wall_s: float = 5.0
-    autopilots: str = "in-process"
-    """"in-process": autopilots and MAVLink servers live in the physics process (no socket hop per tick);
-    "process": one SITL-like autopilot process for all vehicles, connected to the channel."""
-    progress: Callable[[str], None] | None = None
-    firmware: tuple[Firmware, ...] = ()
-    """Per vehicle (or one entry for all; empty: PX4): the personality its MAVLink side presents."""
-    tcp_port_base: int | None = None
-    """ArduPilot vehicles' SERIAL0 (TCP) ports: ``tcp_port_base + tcp_port_step * i``; None: the run's own
-    block (vehicle i listens on TCP ``api_port_base + i``, the number of its UDP API port)."""
-    tcp_port_step: int = 1
-    gcs_extra_ports: tuple[int, ...] = ()
-    """More UDP outputs of ArduPilot vehicles (``harness sitl``: 14551, beside the GCS port 14550)."""
-    signing_key_file: Path | None = None
-    """MAVLink 2 signing on every link (64 hex characters in the file): unsigned frames are obeyed only from this
-    run's own processes (``docs/mavlink.md``, "Signing")."""
-
-    def firmware_of(self, vehicle: int) -> Firmware:
-        return firmware_of(self.firmware, vehicle)
-
-    view_port: int | None = None
-    """Serve the run's 3D view (``world.rrd``'s stream) live to Rerun viewers on this loopback gRPC port."""
-    on_view: Callable[[str], None] | None = None
-    """Called with the live view's address (``rerun+http://…``) once it serves, before the simulation starts."""
-
-
-@dataclass
-class VehicleSummary:
-    id: int
-    mission: str | None
-    mission_exit_code: int | None = None
-    max_altitude_m: float = 0.0
-    final_position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    landed: bool = True
-    armed: bool = False
-    crashed: bool = False
-
-
-@dataclass
-class RunResult:
-    status: str
-    sim_time_s: float
-    wall_time_s: float
-    vehicles: list[VehicleSummary]
-    faults: list[dict[str, Any]]
-    message: str = ""
-
-    @property
-    def real_time_factor(self) -> float:
-        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else 0.0
-
-    @property
-    def exit_code(self) -> int:
-        return 0 if self.status == "ok" else (130 if self.status == "interrupted" else 1)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "status": self.status,
-            "message": self.message,
-            "sim_time_s": self.sim_time_s,
-            "wall_time_s": self.wall_time_s,
-            "real_time_factor": self.real_time_factor,
-            "vehicles": [v.__dict__ | {"final_position_ned_m": list(v.final_position_ned_m)} for v in self.vehicles],
-            "faults": self.faults,
-        }
-
-
-def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
-    write_json(out / "summary.json", result.to_json() | extra | {"finished": True})
 
 
 def _python() -> str:
@@ -170,13 +46,15 @@ def _python() -> str:
 
 
 class Launcher:
-    """Runs one plan. ``run()`` returns the result; the summary is written in any case."""
+    """Runs one plan. ``run()`` returns the result; the summary is written in any case. ``clock``: the wall
+    clock of pacing, progress, the MAVLink side and the run's date (the sim clock is the physics)."""
 
-    def __init__(self, plan: LaunchPlan) -> None:
+    def __init__(self, plan: LaunchPlan, clock: Clock = WALL) -> None:
         check_plan(plan)  # every setting within its bounds before anything starts (limits.py)
         self.plan = plan
+        self.clock = clock
         plan.out.mkdir(parents=True, exist_ok=True)
-        self.epoch_ns = real_time_ns() // NS_PER_S * NS_PER_S
+        self.epoch_ns = clock.unix_ns() // NS_PER_S * NS_PER_S
         self.paused = threading.Event()
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
@@ -222,26 +100,31 @@ class Launcher:
         world = open_world(plan.out, self.epoch_ns, n, plan.origin, serve_port=plan.view_port)
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         faults: list[dict[str, Any]] = []
-        status, message = "ok", ""
-        wall0 = real_monotonic_ns()
+        status, message = RunStatus.OK, ""
+        wall0 = self.clock.now_ns()
         t_ns = 0
         ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         local: list[Any] = []
         extra = self._summary_extra
+        clock = self.clock
         self._checkpoint = Checkpoint(
             plan.out,
             lambda: (
                 RunResult(
-                    "running", phys.t_ns / NS_PER_S, (real_monotonic_ns() - wall0) / NS_PER_S, summaries, []
+                    RunStatus.RUNNING, phys.t_ns / NS_PER_S, (clock.now_ns() - wall0) / NS_PER_S, summaries, []
                 ).to_json()
                 | extra()
             ),
             world.mcap.flush,
+            clock=clock,
         )
         self._checkpoint.write()
-        with ports, Children(plan.out) as sup:  # the block stays this run's until every process has stopped
+        with (
+            ports,
+            Children(plan.out, clock=self.clock) as sup,
+        ):  # the block stays this run's until every process has stopped
             try:
                 if plan.progress is not None:
                     plan.progress(
@@ -258,12 +141,12 @@ class Launcher:
                         )
                 if plan.on_view is not None and world.view is not None and world.view.grpc_url:
                     plan.on_view(world.view.grpc_url)
-                if plan.autopilots == "in-process":
+                if plan.autopilots == AutopilotPlacement.IN_PROCESS:
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
                 self._start_children(sup, channel.address, lambda: channel.pump(0.001))
                 hosts = len(self._autopilot_groups())
-                expected = hosts + (1 if plan.network != "none" else 0) + _mission_count(plan)
+                expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
                 start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
                 if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=start_s):
                     raise SimulationError(
@@ -273,18 +156,18 @@ class Launcher:
                 tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
                 status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
             except KeyboardInterrupt:
-                status, message = "interrupted", "stopped by Ctrl-C"
+                status, message = RunStatus.INTERRUPTED, "stopped by Ctrl-C"
             except SimulationError as exc:
-                status, message = "failed", str(exc)
+                status, message = RunStatus.FAILED, str(exc)
             except Exception as exc:  # a bug must still stop every process and write the summary
                 log.exception("the run failed")
-                status, message = "failed", f"internal error: {exc!r}"
+                status, message = RunStatus.FAILED, f"internal error: {exc!r}"
             finally:
                 channel.close("end of run")
                 world.close()
                 for handle in local:
                     handle.close()
-        wall_s = (real_monotonic_ns() - wall0) / NS_PER_S
+        wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns
         exits = {e.vehicle: e for e in channel.mission_exits}
         swarm_end = swarm.swarm_exit(channel.mission_exits)
@@ -293,8 +176,8 @@ class Launcher:
             if s.mission is not None:
                 e = swarm_end if s.id < plan.vehicles and not _own_mission(plan, s.id) else exits.get(s.id)
                 s.mission_exit_code = e.exit_code if e is not None else None
-                if status == "ok" and (e is None or e.exit_code != 0):
-                    status = "failed"
+                if status == RunStatus.OK and (e is None or e.exit_code != 0):
+                    status = RunStatus.FAILED
                     message = message or (
                         f"the mission of vehicle {s.id} was still running when the run ended at "
                         f"{phys.t_ns / NS_PER_S:.1f} s of sim time"
@@ -302,8 +185,8 @@ class Launcher:
                         else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
         faults = [f.__dict__ for f in channel.faults]
-        if any(s.crashed for s in summaries) and status == "ok":
-            status, message = "failed", "a vehicle crashed"
+        if any(s.crashed for s in summaries) and status == RunStatus.OK:
+            status, message = RunStatus.FAILED, "a vehicle crashed"
         result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
         write_summary(plan.out, result, self._summary_extra())
         return result
@@ -344,7 +227,8 @@ class Launcher:
                         **core_param_defaults(plan.firmware_of(i)),
                         **(plan.params[i] if i < len(plan.params) else {}),
                     },
-                )
+                ),
+                wall_clock=self.clock,
             )
             for i in tree.worker_groups(plan.vehicles, plan.workers)[0]
         }
@@ -353,7 +237,7 @@ class Launcher:
             api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
         )
         signing, trust = run_signing(plan.signing_key_file, os.getpid())  # unsigned: only this run's processes
-        hub = MavlinkHub(name="mavlink").start()  # one wall-clock thread serves every vehicle
+        hub = MavlinkHub(name="mavlink", clock=self.clock).start()  # one wall-clock thread serves every vehicle
         handles: list[Any] = []
         try:
             for i, ap in aps.items():
@@ -419,7 +303,7 @@ class Launcher:
                 ],
                 env=env,
             )
-        if plan.network != "none":
+        if plan.network != NetworkKind.NONE:
             sup.start(
                 "network",
                 [
@@ -459,14 +343,14 @@ class Launcher:
     def _autopilot_groups(self) -> list[range]:
         """The vehicles of each autopilot process (the first share stays in this process when in-process)."""
         groups = tree.worker_groups(self.plan.vehicles, self.plan.workers)
-        return groups[1:] if self.plan.autopilots == "in-process" else groups
+        return groups[1:] if self.plan.autopilots == AutopilotPlacement.IN_PROCESS else groups
 
     def _tcp_port(self, vehicle: int) -> int:
         return self.tcp_port_base + self.plan.tcp_port_step * vehicle
 
     def _loop(
         self, phys: Any, channel: Channel, world: WorldSink, summaries: list[VehicleSummary], sup: Any
-    ) -> tuple[str, str, int]:
+    ) -> tuple[RunStatus, str, int]:
         plan = self.plan
         n = plan.vehicles + plan.remote_vehicles
         record_every = max(1, round(plan.tick_hz / plan.record_hz))
@@ -475,16 +359,16 @@ class Launcher:
         frames = phys.frames()
         link = NativeLink(channel, self._aps)
         paused_once = False
-        wall0 = real_monotonic_ns()
+        wall0 = self.clock.now_ns()
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
         while True:
             t_ns = phys.t_ns
             tick = phys.tick
             if end_ns is not None and t_ns >= end_ns:
-                return "ok", "", t_ns
+                return RunStatus.OK, "", t_ns
             if tree.missions_done(channel, missions, plan.vehicles):
-                return "ok", "", t_ns
+                return RunStatus.OK, "", t_ns
             if plan.pause_at_s is not None and not paused_once and t_ns >= plan.pause_at_s * NS_PER_S:
                 paused_once = True
                 self.paused.set()
@@ -492,38 +376,39 @@ class Launcher:
                 self._pause_timer.daemon = True
                 self._pause_timer.start()
             if self.paused.is_set():
-                stopped = real_monotonic_ns()
-                world.event(t_ns, "paused", {})
+                stopped = self.clock.now_ns()
+                world.event(t_ns, WorldEvent.PAUSED, {})
                 while self.paused.is_set():
-                    real_sleep(0.02)
-                stalled = real_monotonic_ns() - stopped
+                    self.clock.sleep_ns(20_000_000)
+                stalled = self.clock.now_ns() - stopped
                 wall0 += stalled  # pacing resumes from here, it does not rush to catch up
-                world.event(t_ns, "resumed", {"paused_wall_s": stalled / NS_PER_S})
+                world.event(t_ns, WorldEvent.RESUMED, {"paused_wall_s": stalled / NS_PER_S})
             if plan.speed is not None:
-                lag = wall0 + int(t_ns / plan.speed) - real_monotonic_ns()
-                if lag > 0:
-                    real_sleep(lag / NS_PER_S)
-            tick_start = real_monotonic_ns()
+                lag = wall0 + int(t_ns / plan.speed) - self.clock.now_ns()
+                self.clock.sleep_ns(lag)
+            tick_start = self.clock.now_ns()
             etas = link.exchange(t_ns, tick, frames)
             for e in etas:
                 motors[e.vehicle] = e.motors
                 summaries[e.vehicle].armed = p.unpack_status(e.status)[0]
             if tick % record_every == 0:
-                now = real_monotonic_ns()
+                now = self.clock.now_ns()
                 for f in frames:
                     tr = f.truth
                     world.vehicle(
-                        t_ns,
-                        f.vehicle,
-                        tr.pos_ned_m,
-                        tr.quat,
-                        tr.vel_ned_m_s,
-                        tr.lat_deg,
-                        tr.lon_deg,
-                        tr.alt_amsl_m,
-                        motors[f.vehicle],
-                        tr.on_ground,
-                        tr.crashed,
+                        VehicleSample(
+                            t_ns,
+                            f.vehicle,
+                            tr.pos_ned_m,
+                            tr.quat,
+                            tr.vel_ned_m_s,
+                            tr.lat_deg,
+                            tr.lon_deg,
+                            tr.alt_amsl_m,
+                            motors[f.vehicle],
+                            tr.on_ground,
+                            tr.crashed,
+                        )
                     )
                 world.tick(t_ns, tick, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3)
             frames = phys.step(motors)
@@ -536,15 +421,15 @@ class Launcher:
                 s.landed = f.truth.on_ground
                 if f.truth.crashed and not s.crashed:
                     s.crashed = True
-                    world.event(t_ns, "crash", {"vehicle": f.vehicle})
+                    world.event(t_ns, WorldEvent.CRASH, {"vehicle": f.vehicle})
             if tick % 50 == 0:  # every 0.2 s of sim time: a child's death is noticed, waitpid stays cheap
                 for name, code in sup.poll_exits():
                     if name.startswith("autopilot") or name == "network":
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
             if self._checkpoint is not None:
                 self._checkpoint.maybe()
-            if plan.progress is not None and real_monotonic_ns() - last_progress > 500_000_000:
-                last_progress = real_monotonic_ns()
+            if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
+                last_progress = self.clock.now_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
 
     @staticmethod

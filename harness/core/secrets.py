@@ -13,7 +13,7 @@ import os
 import string
 from pathlib import Path
 
-from harness.errors import ScenarioError
+from harness.core.errors import ScenarioError
 
 SECRET_ENV = ("HARNESS_SECRET", "HARNESS_CHANNEL_SECRET")
 _HEX = frozenset(string.hexdigits)

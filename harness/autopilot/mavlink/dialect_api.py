@@ -1,0 +1,45 @@
+"""What a firmware dialect is to the MAVLink server, and what the server is to a dialect (the two sides of
+``harness.autopilot.mavlink.personality.make_dialect``), apart from either implementation."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Protocol
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from harness.autopilot.api import AutopilotApi, Severity, VehicleState
+from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
+from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule
+from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
+from harness.autopilot.mavlink.telemetry import Builder, StreamScheduler
+
+
+class DialectHost(Protocol):
+    """What a dialect may use of its server (the server thread calls the dialect, under the server lock)."""
+
+    streams: StreamScheduler
+    heartbeat: HeartbeatSchedule
+
+    @property
+    def mav(self) -> mavlink2.MAVLink:
+        """The encoder (its ``*_encode`` methods build messages)."""
+        ...
+
+    def say(self, severity: Severity, text: str, now: int) -> None: ...
+    def link_name(self, link: int) -> str: ...
+
+
+class Dialect(Protocol):
+    api: AutopilotApi
+    mission_float_form: bool
+    param_bytewise: bool
+    builders: Mapping[int, Builder]
+    stream_defaults: Mapping[int, int]
+
+    def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None: ...
+    def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage: ...
+    def autopilot_version(self, mav: mavlink2.MAVLink, sysid: int) -> MAVLinkMessage: ...
+    def command_handlers(self) -> Mapping[int, Callable[[CommandIn], CommandOutcome]]: ...
+    def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out] | None: ...
+    def tick(self, state: VehicleState, now: int) -> list[Out]: ...

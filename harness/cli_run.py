@@ -1,0 +1,169 @@
+"""The ``harness`` subcommands around a run: the channel on its own, ``join``, ``sweep``, ``plot``, and the
+terminal helpers ``cli.py`` shares with them (progress lines, Ctrl-C as an interrupt, the tree options)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from harness.core.errors import ScenarioError
+
+if TYPE_CHECKING:
+    from harness.sweep.runner import SweepProgress
+
+
+def cmd_channel(a: argparse.Namespace, _rest: list[str]) -> int:
+    from harness.channel import Channel, ChannelConfig
+    from harness.core.secrets import channel_secret
+
+    if a.secret:
+        print("harness channel: --secret shows in ps; prefer --secret-file or $HARNESS_SECRET", file=sys.stderr)
+    secret = channel_secret(a.secret, a.secret_file)
+    cfg = ChannelConfig(
+        address=a.listen,
+        name=a.name,
+        parent=a.parent,
+        secret=secret,
+        tick_hz=a.tick_hz,
+        phase_every=a.phase_every,
+        stall_timeout_s=a.stall_timeout,
+    )
+    ch = Channel(cfg)
+    address = ch.bind()
+    print(f"channel {cfg.name} listening on {address}", flush=True)
+    signal.signal(signal.SIGTERM, lambda *_: ch.stop())
+    try:
+        ch.serve()
+    except KeyboardInterrupt:
+        return 130
+    for f in ch.faults:
+        print(f"fault: {f.peer} ({f.kind}) {f.reason}", file=sys.stderr)
+    if ch.failure:
+        print(f"run failed: {ch.failure}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def progress_printer() -> Callable[[str], None]:
+    if sys.stderr.isatty():
+
+        def live(line: str) -> None:
+            sys.stderr.write("\r\033[K" + line)
+            sys.stderr.flush()
+
+        return live
+    return lambda line: print(line, file=sys.stderr, flush=True)
+
+
+def tree_options(a: argparse.Namespace) -> dict[str, Any]:
+    """--remote-vehicles, --accept, --secret-file, --join-timeout: the root of a tree across machines."""
+    from harness.run.tree import parse_workers, read_secret
+
+    workers = {"workers": parse_workers(a.workers)} if getattr(a, "workers", None) else {}
+    remote = getattr(a, "remote_vehicles", None)
+    if remote is None and getattr(a, "accept", None) is None:
+        return workers
+    if remote is not None and remote < 0:
+        raise ScenarioError(f"--remote-vehicles must be >= 0, got {remote}")
+    return {
+        "remote_vehicles": remote or 0,
+        "listen": a.accept,
+        "secret": read_secret(a.secret_file),
+        "join_timeout_s": a.join_timeout,
+        **workers,
+    }
+
+
+def cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
+    from harness.run.join import plan_from_args, run_join
+
+    terminate_as_interrupt()
+    result = run_join(plan_from_args(a, rest, progress_printer()))
+    for vehicle, code in result.exits.items():
+        print(f"  vehicle {vehicle}: mission exit {code}")
+    if result.message:
+        print(result.message, file=sys.stderr)
+    return result.exit_code
+
+
+def terminate_as_interrupt() -> None:
+    """SIGINT and SIGTERM (Ctrl-C, a CI timeout, a supervisor) end a run cleanly: children stopped, summary
+    written — also when the shell started us in the background with SIGINT ignored."""
+
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
+def sweep_bar() -> Callable[[SweepProgress], None]:
+    """The sweep's progress bar on stderr: redrawn in place on a terminal, a line per finished run otherwise."""
+    tty = sys.stderr.isatty()
+    last_seen: list[tuple[int, str]] = [(-1, "")]
+
+    def show(pr: SweepProgress) -> None:
+        line = pr.bar()
+        if tty:
+            sys.stderr.write("\r\033[K" + line)
+            sys.stderr.flush()
+        elif pr.done != last_seen[0][0] or (pr.last and pr.last != last_seen[0][1]):
+            last_seen[0] = (pr.done, pr.last)
+            print(line + (f"  {pr.last}" if pr.last else ""), file=sys.stderr, flush=True)
+
+    return show
+
+
+def cmd_sweep(a: argparse.Namespace, rest: list[str]) -> int:
+    from harness.sweep.runner import SweepOptions, quiet_dask, run_sweep
+    from harness.sweep.spec import build_sweep
+
+    if rest:
+        raise ScenarioError(f"harness sweep: unexpected arguments {' '.join(rest)}")
+    spec = build_sweep(a.scenario, a.seeds, a.set)  # every combination validated before anything starts
+    out = Path(a.out) if a.out else Path("runs") / f"sweep-{Path(a.scenario).stem}"
+    opts = SweepOptions(out, a.scheduler, a.runs_per_worker, a.run_timeout, a.retry_failed)
+    quiet_dask(a.verbose == 0)
+    terminate_as_interrupt()
+    print(f"sweep of {len(spec.runs)} runs into {out}", flush=True)
+    outcome = run_sweep(spec, opts, sweep_bar())
+    if sys.stderr.isatty():
+        sys.stderr.write("\n")
+    print(
+        f"{'interrupted' if outcome.interrupted else 'done'}: {outcome.ran} run(s) this time, {outcome.kept} kept "
+        f"from before, {len(outcome.failed)} not ok, in {outcome.wall_time_s:.1f} s; results in {out / 'results.csv'}"
+    )
+    for row in outcome.failed:
+        print(f"  {row['run']}: {row.get('status')}: {row.get('message')}", file=sys.stderr)
+    if outcome.interrupted:
+        print("re-run the same command to finish the missing runs", file=sys.stderr)
+    if a.plot and not outcome.interrupted:
+        from harness.sweep.plot import make_sweep_plots
+
+        make_sweep_plots(out)
+        print(f"plots: {out / 'index.html'}")
+    return outcome.exit_code
+
+
+def cmd_plot(a: argparse.Namespace, rest: list[str]) -> int:
+    from harness.record.plot import make_plots
+
+    if (Path(a.dir) / "sweep.json").is_file():
+        from harness.sweep.plot import make_sweep_plots
+
+        for path in make_sweep_plots(Path(a.dir)):
+            print(path)
+        return 0
+    for path in make_plots(Path(a.dir)):
+        print(path)
+    if (Path(a.dir) / "summary.json").is_file():
+        from harness.record.status import KILLED, read_summary
+
+        summary = read_summary(Path(a.dir))
+        if summary.get("status") == KILLED:
+            print(f"note: {summary['message']}", file=sys.stderr)
+    return 0

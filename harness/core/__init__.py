@@ -1,0 +1,1 @@
+"""The base layer: the clock, geodesy, errors and the port conventions every other layer shares."""

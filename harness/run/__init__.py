@@ -1,0 +1,1 @@
+"""Running a scenario: the launcher (physics, root channel, supervised processes) and port allocation."""

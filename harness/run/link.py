@@ -1,0 +1,57 @@
+"""The native vehicle link: physics and our own autopilots exchange each tick through the root channel.
+
+:class:`NativeLink` is the first :class:`~harness.fdm.link.VehicleLink`: BEGIN-TICK-AC / END-TICK-AC of the
+paper through the root channel (which also runs the missions' and network's phases). It joins the physics
+layer to the channel, so it lives with the launcher that builds both.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Protocol
+
+from harness.autopilot.api import TickStatus
+from harness.channel import Channel
+from harness.fdm.frame import SensorFrame, encode_frame
+from harness.wire import protocol as p
+
+
+class LocalFlightStack(Protocol):
+    """A flight stack stepped inside the physics process (``harness.autopilot.Autopilot``)."""
+
+    def step(self, frame: SensorFrame) -> tuple[float, float, float, float]: ...
+    def tick_status(self) -> TickStatus: ...
+
+
+class NativeLink:
+    """Our autopilots through the root channel (which also runs the missions' and network's phases).
+
+    Autopilots in this process (``local``) are stepped by the channel in the tick's phase 0 with the
+    frame object itself; only autopilots in other processes get it encoded in their BEGIN-TICK-AC.
+    """
+
+    def __init__(self, channel: Channel, local: Mapping[int, LocalFlightStack] | None = None) -> None:
+        self.channel = channel
+        self._local = dict(local or {})
+        self._frames: dict[int, SensorFrame] = {}
+        if self._local:
+            channel.attach_local_autopilots(self._local, self._step_local)
+
+    def _step_local(self, m: p.BeginTickAC) -> p.EndTickAC:
+        stack = self._local[m.vehicle]
+        return p.EndTickAC(m.t_ns, m.vehicle, stack.step(self._frames[m.vehicle]), p.pack_status(*stack.tick_status()))
+
+    def exchange(self, t_ns: int, tick: int, frames: Sequence[SensorFrame]) -> list[p.EndTickAC]:
+        n = len(frames)
+        local = self._local
+        msgs = []
+        for f in frames:
+            if f.vehicle in local:
+                self._frames[f.vehicle] = f
+                msgs.append(p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, b""))
+            else:
+                msgs.append(p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, encode_frame(f)))
+        return self.channel.step(msgs)
+
+    def close(self) -> None:
+        self.channel.close("end of run")

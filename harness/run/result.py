@@ -1,0 +1,73 @@
+"""What a run reports: its status and the per-vehicle summary written to ``summary.json``."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from harness.record.status import KILLED, RUNNING, write_json
+
+
+class RunStatus(enum.StrEnum):
+    """A run's outcome: ``summary.json``'s ``status`` (running while it runs, then ok, failed, interrupted;
+    killed when read back from a run whose process is gone), and in a sweep's results.csv also what the sweep
+    saw of a run that wrote no summary (timeout, lost)."""
+
+    RUNNING = RUNNING
+    """Written from the start and every second while the run goes on (:mod:`harness.record.status`)."""
+    OK = "ok"
+    FAILED = "failed"
+    INTERRUPTED = "interrupted"
+    TIMEOUT = "timeout"
+    KILLED = KILLED
+    """``harness run`` was killed (``kill -9``, the OOM killer) after it started: its summary still said "running"."""
+    LOST = "lost"
+    """``harness run`` ended without writing a summary (a crash before it started)."""
+
+
+@dataclass
+class VehicleSummary:
+    id: int
+    mission: str | None
+    mission_exit_code: int | None = None
+    max_altitude_m: float = 0.0
+    final_position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    landed: bool = True
+    armed: bool = False
+    crashed: bool = False
+
+
+@dataclass
+class RunResult:
+    status: RunStatus
+    sim_time_s: float
+    wall_time_s: float
+    vehicles: list[VehicleSummary]
+    faults: list[dict[str, Any]]
+    message: str = ""
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else 0.0
+
+    @property
+    def exit_code(self) -> int:
+        return 0 if self.status == RunStatus.OK else (130 if self.status == RunStatus.INTERRUPTED else 1)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "status": self.status,
+            "message": self.message,
+            "sim_time_s": self.sim_time_s,
+            "wall_time_s": self.wall_time_s,
+            "real_time_factor": self.real_time_factor,
+            "vehicles": [v.__dict__ | {"final_position_ned_m": list(v.final_position_ned_m)} for v in self.vehicles],
+            "faults": self.faults,
+        }
+
+
+def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
+    """The final ``summary.json`` (atomically; it replaces the "running" checkpoints)."""
+    write_json(out / "summary.json", result.to_json() | extra | {"finished": True})
