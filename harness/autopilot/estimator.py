@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import math
 
-from harness.autopilot.mathutil import G_M_S2, quat_from_euler
+from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
-from harness.core.geo import GeoRef
+from harness.core.geo import GeoRef, quat_from_euler
 from harness.fdm.frame import Gps, SensorFrame
 
 _HIST = 64

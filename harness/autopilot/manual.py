@@ -31,6 +31,7 @@ from harness.autopilot.api import AttitudeTarget, CommandResult, Failsafe, Fligh
 from harness.autopilot.control import NAN
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.supervisor import Supervised
+from harness.core.geo import quat_from_euler
 
 
 class _RcSignal(Protocol):
@@ -61,18 +62,6 @@ def deadzone(v: float, dz: float) -> float:
 def _rotate_heading(fwd: float, right: float, yaw: float) -> tuple[float, float]:
     c, s = math.cos(yaw), math.sin(yaw)
     return (fwd * c - right * s, fwd * s + right * c)
-
-
-def _euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
 
 
 class ManualControl:
@@ -161,7 +150,7 @@ class ManualControl:
         thrust = hover + thr * ((tmax - hover) if thr > 0 else (hover - tmin))
         if c.landed_state == LandedState.ON_GROUND and thr <= 0.0:
             thrust = 0.0
-        q = _euler_to_quat(right * tilt, -fwd * tilt, self._yaw_sp)
+        q = quat_from_euler(right * tilt, -fwd * tilt, self._yaw_sp)
         c.nav.manual_att = AttitudeTarget(q, thrust, (0.0, 0.0, yaw_rate))
 
     def _setpoint(self, dt: float) -> None:

@@ -23,6 +23,19 @@ WGS84_E2: Final = 6.69437999014e-3
 """WGS-84 first eccentricity squared."""
 
 
+def quat_from_euler(roll: float, pitch: float, yaw: float) -> Quat:
+    """The attitude of Euler angles (rad; roll, pitch, yaw as ZYX), as a unit quaternion."""
+    cr, sr = math.cos(roll * 0.5), math.sin(roll * 0.5)
+    cp, sp = math.cos(pitch * 0.5), math.sin(pitch * 0.5)
+    cy, sy = math.cos(yaw * 0.5), math.sin(yaw * 0.5)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
 def flat_offset_m(
     lat0_deg: float, lon0_deg: float, lat_deg: float, lon_deg: float, radius_m: float = EARTH_RADIUS_M
 ) -> tuple[float, float]:

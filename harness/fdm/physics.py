@@ -17,7 +17,7 @@ import jsbsim
 import numpy as np
 
 from harness.core.errors import ScenarioError, SimulationError
-from harness.core.geo import Vec3
+from harness.core.geo import Vec3, quat_from_euler
 from harness.fdm.environment import TURBULENCE_LEVELS, Turbulence, WindConfig, WorldOrigin
 from harness.fdm.frame import MOTOR_COUNT, SensorFrame, Truth
 from harness.fdm.params import DEFAULT_QUAD, FT_PER_M, G_M_S2, M_PER_FT, N_PER_LBF, QuadParams, models_root
@@ -138,18 +138,6 @@ class _Vehicle:
         self.motors = (0.0, 0.0, 0.0, 0.0)
 
 
-def _quat_from_euler(phi: float, theta: float, psi: float) -> tuple[float, float, float, float]:
-    cr, sr = math.cos(phi / 2), math.sin(phi / 2)
-    cp, sp = math.cos(theta / 2), math.sin(theta / 2)
-    cy, sy = math.cos(psi / 2), math.sin(psi / 2)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
-
-
 class Physics:
     """N vehicles in lockstep. Not thread-safe: one caller steps it."""
 
@@ -236,7 +224,7 @@ class Physics:
         alt = h_ft * M_PER_FT
         pos = cfg.origin.geodetic_to_ned(lat, lon, alt)
         vel = (vn * M_PER_FT, ve * M_PER_FT, vd * M_PER_FT)
-        quat = _quat_from_euler(phi, theta, psi)
+        quat = quat_from_euler(phi, theta, psi)
         m = cfg.quad.mass_kg
         sf = (fx * N_PER_LBF / m, fy * N_PER_LBF / m, fz * N_PER_LBF / m)
         on_ground = abs(fgear) > 1e-3

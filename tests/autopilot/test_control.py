@@ -15,8 +15,9 @@ from harness.autopilot.control import (
     mix_quad_x,
     thrust_to_attitude,
 )
-from harness.autopilot.mathutil import quat_from_euler, quat_to_euler
+from harness.autopilot.mathutil import quat_to_euler
 from harness.autopilot.params import Params
+from harness.core.geo import quat_from_euler
 
 
 def _torques(m: tuple[float, ...]) -> tuple[float, float, float, float]:

@@ -7,9 +7,9 @@ import math
 import numpy as np
 
 from harness.autopilot.estimator import Estimator
-from harness.autopilot.mathutil import G_M_S2, quat_from_euler, quat_to_euler, rotate_inv, wrap_pi
+from harness.autopilot.mathutil import G_M_S2, quat_to_euler, rotate_inv, wrap_pi
 from harness.autopilot.params import Params
-from harness.core.geo import GeoRef
+from harness.core.geo import GeoRef, quat_from_euler
 from harness.fdm.frame import Baro, Gps, Imu, Mag, SensorFrame, Truth
 
 REF = GeoRef(47.0, 8.0, 500.0)

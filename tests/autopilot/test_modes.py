@@ -188,7 +188,7 @@ def test_orbit_keeps_radius() -> None:
 
 def test_offboard_position_body_velocity_and_attitude() -> None:
     from harness.autopilot.api import AttitudeTarget, OffboardFrame
-    from harness.autopilot.mathutil import quat_from_euler
+    from harness.core.geo import quat_from_euler
 
     rig = Rig()
     ap = rig.ap
