@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -87,23 +88,7 @@ def item_to_message(
     else:
         x = clamp_int(float(it.x) * _LOCAL_SCALE, -(2**31), 2**31 - 1)
         y = clamp_int(float(it.y) * _LOCAL_SCALE, -(2**31), 2**31 - 1)
-    return mav.mission_item_int_encode(
-        target.sysid,
-        target.compid,
-        seq,
-        it.frame,
-        it.command,
-        1 if current else 0,
-        1 if it.autocontinue else 0,
-        it.param1,
-        it.param2,
-        it.param3,
-        it.param4,
-        x,
-        y,
-        it.z,
-        kind,
-    )
+    return _encode(mav.mission_item_int_encode, it, seq, target, kind, current, x, y)
 
 
 def item_to_float_message(
@@ -112,23 +97,7 @@ def item_to_float_message(
     """The float MISSION_ITEM (degrees, metres) that DroneKit and older ground stations read."""
     x = it.lat_deg if it.is_global else float(it.x)
     y = it.lon_deg if it.is_global else float(it.y)
-    return mav.mission_item_encode(
-        target.sysid,
-        target.compid,
-        seq,
-        it.frame,
-        it.command,
-        1 if current else 0,
-        1 if it.autocontinue else 0,
-        it.param1,
-        it.param2,
-        it.param3,
-        it.param4,
-        x,
-        y,
-        it.z,
-        kind,
-    )
+    return _encode(mav.mission_item_encode, it, seq, target, kind, current, x, y)
 
 
 @dataclass(slots=True)
@@ -316,3 +285,33 @@ class ProgressTracker:
             self._last = key
             return True
         return False
+
+
+def _encode(
+    encode: Callable[..., MAVLinkMessage],
+    it: MissionItem,
+    seq: int,
+    target: Origin,
+    kind: int,
+    current: bool,
+    x: float,
+    y: float,
+) -> MAVLinkMessage:
+    """MISSION_ITEM and MISSION_ITEM_INT have the same fields; only x/y differ in type and scale."""
+    return encode(
+        target.sysid,
+        target.compid,
+        seq,
+        it.frame,
+        it.command,
+        1 if current else 0,
+        1 if it.autocontinue else 0,
+        it.param1,
+        it.param2,
+        it.param3,
+        it.param4,
+        x,
+        y,
+        it.z,
+        kind,
+    )
