@@ -91,24 +91,23 @@ class WorldTee:
                 self._backlog.append(call)
                 return
             self._opened(self._opening.wait())
-        if self.view is None:
-            return
-        try:
-            call(self.view)
-        except Exception:
-            self._fail()
+        self._apply(call)
 
     def _opened(self, view: RrdRecorder | None) -> None:
         self._opening = None
         self.view = view
         backlog, self._backlog = self._backlog, []
         for call in backlog:
-            if self.view is None:
-                return
-            try:
-                call(self.view)
-            except Exception:
-                self._fail()
+            self._apply(call)
+
+    def _apply(self, call: Callable[[RrdRecorder], None]) -> None:
+        """``call`` on the view, if there is one; a failure switches the view off."""
+        if self.view is None:
+            return
+        try:
+            call(self.view)
+        except Exception:
+            self._fail()
 
     def _fail(self) -> None:
         log.warning("the 3D view failed and is switched off for the rest of the run", exc_info=True)
