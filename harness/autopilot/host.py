@@ -22,6 +22,7 @@ import msgspec
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.core.errors import ScenarioError, SimulationError
 from harness.fdm.frame import decode_frame
+from harness.fdm.physics import Physics
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
 
@@ -68,10 +69,26 @@ def make_autopilots(
     return {v: Autopilot(config_for(v) if config_for else AutopilotConfig(vehicle=v)) for v in vehicles}
 
 
-def serve(client: ChannelClient, autopilots: dict[int, Autopilot], stop: threading.Event | None = None) -> int:
-    """Answer ticks until the channel says BYE or closes; returns the number of ticks answered."""
+def serve(
+    client: ChannelClient,
+    autopilots: dict[int, Autopilot],
+    stop: threading.Event | None = None,
+    physics: Physics | None = None,
+) -> int:
+    """Answer ticks until the channel says BYE or closes; returns the number of ticks answered.
+
+    With ``physics`` (simulating exactly the vehicles of ``autopilots``) this host is a worker of
+    ``harness run --workers``: BEGIN-TICK-AC carry no sensor frame; once a tick's are all in, each autopilot
+    steps with its own vehicle's frame, the END-TICK-AC go out with that frame's ground truth, and only
+    then the physics steps with the motors (the root records, the missions run and the network carries
+    their packets meanwhile), so the next tick's frames are ready when its BEGIN-TICK-AC arrive.
+    """
+    if physics is not None and sorted(physics.owned) != sorted(autopilots):
+        raise ScenarioError(
+            f"{client.name}: physics of vehicles {list(physics.owned)}, autopilots of {sorted(autopilots)}"
+        )
     ticks = 0
-    BeginTickAC, EndTickAC = p.BeginTickAC, p.EndTickAC
+    pending: list[p.BeginTickAC] = []
     while stop is None or not stop.is_set():
         try:
             msgs = client.recv()
@@ -79,19 +96,18 @@ def serve(client: ChannelClient, autopilots: dict[int, Autopilot], stop: threadi
             return ticks
         out: list[p.Message] = []
         for msg in msgs:
-            if type(msg) is BeginTickAC:
-                ap = autopilots.get(msg.vehicle)
-                if ap is None:
-                    raise SimulationError(
-                        f"{client.name}: the channel sent a tick for vehicle {msg.vehicle}, "
-                        f"but this host flies {sorted(autopilots)}"
-                    )
-                try:
-                    frame = decode_frame(msg.frame)
-                except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-                    raise SimulationError(f"{client.name}: bad sensor frame for vehicle {msg.vehicle}: {exc}") from None
-                out.append(EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), p.pack_status(*ap.tick_status())))
-                ticks += 1
+            if type(msg) is p.BeginTickAC:
+                if physics is None:
+                    out.append(_answer(client, autopilots, msg))
+                    ticks += 1
+                    continue
+                pending.append(msg)
+                if len(pending) == msg.count:
+                    answers, motors = _worker_tick(client, autopilots, physics, pending)
+                    client.send_many(answers)
+                    physics.step(motors)
+                    ticks += len(pending)
+                    pending = []
             elif isinstance(msg, p.Bye):
                 if out:
                     client.send_many(out)
@@ -105,6 +121,51 @@ def serve(client: ChannelClient, autopilots: dict[int, Autopilot], stop: threadi
     return ticks
 
 
+def _autopilot_of(client: ChannelClient, autopilots: dict[int, Autopilot], vehicle: int) -> Autopilot:
+    ap = autopilots.get(vehicle)
+    if ap is None:
+        raise SimulationError(
+            f"{client.name}: the channel sent a tick for vehicle {vehicle}, but this host flies {sorted(autopilots)}"
+        )
+    return ap
+
+
+def _answer(client: ChannelClient, autopilots: dict[int, Autopilot], msg: p.BeginTickAC) -> p.EndTickAC:
+    """One autopilot's step with the sensor frame its BEGIN-TICK-AC brought."""
+    ap = _autopilot_of(client, autopilots, msg.vehicle)
+    try:
+        frame = decode_frame(msg.frame)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        raise SimulationError(f"{client.name}: bad sensor frame for vehicle {msg.vehicle}: {exc}") from None
+    return p.EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), p.pack_status(*ap.tick_status()))
+
+
+def _worker_tick(
+    client: ChannelClient, autopilots: dict[int, Autopilot], physics: Physics, begin: list[p.BeginTickAC]
+) -> tuple[list[p.Message], list[tuple[float, float, float, float]]]:
+    """A tick of a host that steps its vehicles' physics too: the answers (sent before the physics steps)
+    and the motor commands, in the physics' order."""
+    t_ns = begin[0].t_ns
+    if t_ns != physics.t_ns or len(begin) != len(physics.owned) or any(m.t_ns != t_ns for m in begin):
+        raise SimulationError(
+            f"{client.name}: the channel sent {len(begin)} BEGIN-TICK-AC for t={t_ns} ns, but this host "
+            f"simulates vehicles {list(physics.owned)} at t={physics.t_ns} ns"
+        )
+    frames = {f.vehicle: f for f in physics.frames()}
+    motors: dict[int, tuple[float, float, float, float]] = {}
+    out: list[p.Message] = []
+    for msg in begin:
+        ap = _autopilot_of(client, autopilots, msg.vehicle)
+        frame = frames[msg.vehicle]
+        cmd = motors[msg.vehicle] = ap.step(frame)
+        tr = frame.truth
+        truth = p.pack_truth(
+            tr.pos_ned_m, tr.vel_ned_m_s, tr.quat, tr.lat_deg, tr.lon_deg, tr.alt_amsl_m, tr.on_ground, tr.crashed
+        )
+        out.append(p.EndTickAC(t_ns, msg.vehicle, cmd, p.pack_status(*ap.tick_status()), truth))
+    return out, [motors[v] for v in physics.owned]
+
+
 def run_autopilots(
     address: str,
     vehicles: Sequence[int],
@@ -115,10 +176,12 @@ def run_autopilots(
     secret: bytes | None = None,
     stop: threading.Event | None = None,
     autopilots: dict[int, Autopilot] | None = None,
+    physics: Physics | None = None,
 ) -> dict[int, Autopilot]:
     """Fly ``vehicles`` in lockstep with the channel at ``address`` until the run ends.
 
-    ``config_for(v)`` gives each vehicle's configuration; ``attach(ap)`` plugs in the MAVLink side.
+    ``config_for(v)`` gives each vehicle's configuration; ``attach(ap)`` plugs in the MAVLink side;
+    ``physics`` (of exactly ``vehicles``): this host steps their physics too (:func:`serve`).
     Returns the autopilots (their final state is readable after the run).
     """
     aps = autopilots if autopilots is not None else make_autopilots(vehicles, config_for)
@@ -132,7 +195,7 @@ def run_autopilots(
         label = name or "autopilot-" + "-".join(str(v) for v in vehicles)
         client = ChannelClient.connect(address, p.PeerKind.AUTOPILOT, label, vehicles=tuple(vehicles), secret=secret)
         try:
-            serve(client, aps, stop)
+            serve(client, aps, stop, physics)
         finally:
             client.close("autopilot host stopping")
     finally:

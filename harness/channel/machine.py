@@ -213,6 +213,8 @@ class TickMachine(Membership):
                 peer, f"sent END-TICK-AC for vehicle {msg.vehicle} at t={msg.t_ns} ns unasked", p.ErrorCode.UNEXPECTED
             )
             return
+        if msg.truth:  # its host steps its physics too: this tick's position comes with the answer
+            self._positions[msg.vehicle] = p.truth_position(msg.truth)
         waiting.discard(msg.vehicle)
         self._etas[msg.vehicle] = msg
         if not waiting:
@@ -582,8 +584,6 @@ class TickMachine(Membership):
 # the states the hot path compares against, bound once (a module global is one lookup, an enum member two)
 _IDLE, _COLLECTING, _AWAITING = TickState.IDLE, TickState.COLLECTING, TickState.AWAITING_HOLDERS
 _ANSWERED, _PENDING, _ZERO, _CHILD = TickState.ANSWERED, PhaseState.PENDING, PhaseState.ZERO, Role.CHILD
-
-
 _by_vehicle = operator.attrgetter("vehicle")
 _IN_PROCESS = PeerLink.IN_PROCESS
 

@@ -38,6 +38,9 @@ from harness.scenario.limits import check_plan
 from harness.scenario.plan import AutopilotPlacement, LaunchPlan, MissionPlan, NetworkKind
 from harness.wire import protocol as p
 
+PHYSICS_FILE = "physics.json"
+"""The run's physics configuration in its directory, from which each autopilot host builds its share."""
+
 log = logging.getLogger(__name__)
 
 
@@ -73,18 +76,21 @@ class Launcher:
 
         plan = self.plan
         n = plan.vehicles + plan.remote_vehicles
-        phys = Physics(
-            PhysicsConfig(
-                n_vehicles=n,
-                seed=plan.seed,
-                substep_hz=plan.physics_hz,
-                tick_hz=plan.tick_hz,
-                origin=WorldOrigin(*plan.origin),
-                wind=WindConfig(steady_ned_m_s=plan.wind_ned_m_s, turbulence=plan.turbulence),
-                spawn_ned_m=plan.spawn_ned_m,
-                sensors=SensorConfig.for_gps(plan.gps, noise=plan.sensor_noise),
-            )
+        physics_cfg = PhysicsConfig(
+            n_vehicles=n,
+            seed=plan.seed,
+            substep_hz=plan.physics_hz,
+            tick_hz=plan.tick_hz,
+            origin=WorldOrigin(*plan.origin),
+            wind=WindConfig(steady_ned_m_s=plan.wind_ned_m_s, turbulence=plan.turbulence),
+            spawn_ned_m=plan.spawn_ned_m,
+            sensors=SensorConfig.for_gps(plan.gps, noise=plan.sensor_noise),
         )
+        # each autopilot host steps its vehicles' physics too (configured by this file); this process the rest
+        in_hosts = {v for group in self._autopilot_groups() for v in group}
+        if in_hosts:
+            (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
+        phys = Physics(physics_cfg, [v for v in range(n) if v not in in_hosts])
         channel = Channel(
             ChannelConfig(
                 tick_hz=plan.tick_hz,
@@ -266,8 +272,9 @@ class Launcher:
         overrides = {str(i): p for i, p in enumerate(plan.params) if p}
         for k, group in enumerate(self._autopilot_groups()):
             vehicles = ",".join(str(i) for i in group)
+            name = f"autopilot-{k}" if k else "autopilot"
             sup.start(
-                f"autopilot-{k}" if k else "autopilot",
+                name,
                 [
                     _python(),
                     "-m",
@@ -294,6 +301,10 @@ class Launcher:
                     str(plan.tcp_port_step),
                     "--gcs-extra-ports",
                     ",".join(str(p) for p in plan.gcs_extra_ports),
+                    "--physics",
+                    str(plan.out / PHYSICS_FILE),
+                    "--name",
+                    name,
                     *(["--tcp-sim-clients"] if self._tcp_sim_clients else []),
                     *(  # the key's file, never the key: argv is public (ps)
                         ["--signing-key-file", str(plan.signing_key_file.resolve()), "--trust-run", str(os.getpid())]
@@ -362,6 +373,11 @@ class Launcher:
         wall0 = self.clock.now_ns()
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
+        own = phys.owned
+        truth: list[Any] = [None] * n
+        """Every vehicle's ground truth at this tick: from this process's physics or a worker's END-TICK-AC."""
+        elsewhere = {v: phys.cfg.spawn(v) for v in range(n) if v not in set(own)}
+        """Vehicles whose physics runs in an autopilot host, with their last known position."""
         while True:
             t_ns = phys.t_ns
             tick = phys.tick
@@ -387,41 +403,38 @@ class Launcher:
                 lag = wall0 + int(t_ns / plan.speed) - self.clock.now_ns()
                 self.clock.sleep_ns(lag)
             tick_start = self.clock.now_ns()
-            etas = link.exchange(t_ns, tick, frames)
+            etas = link.exchange(t_ns, tick, frames, elsewhere)
+            for f in frames:
+                truth[f.vehicle] = f.truth
             for e in etas:
                 motors[e.vehicle] = e.motors
                 summaries[e.vehicle].armed = p.unpack_status(e.status)[0]
+                if e.vehicle in elsewhere:
+                    if not e.truth:
+                        raise SimulationError(f"the autopilot host of vehicle {e.vehicle} sent no ground truth")
+                    tr = truth[e.vehicle] = p.unpack_truth(e.truth)
+                    elsewhere[e.vehicle] = tr.pos_ned_m
             if tick % record_every == 0:
                 now = self.clock.now_ns()
-                for f in frames:
-                    tr = f.truth
+                for v, tr in enumerate(truth):
                     world.vehicle(
                         VehicleSample(
                             t_ns,
-                            f.vehicle,
+                            v,
                             tr.pos_ned_m,
                             tr.quat,
                             tr.vel_ned_m_s,
                             tr.lat_deg,
                             tr.lon_deg,
                             tr.alt_amsl_m,
-                            motors[f.vehicle],
+                            motors[v],
                             tr.on_ground,
                             tr.crashed,
                         )
                     )
                 world.tick(t_ns, tick, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3)
-            frames = phys.step(motors)
-            for f in frames:
-                s = summaries[f.vehicle]
-                alt = -f.truth.pos_ned_m[2]
-                if alt > s.max_altitude_m:
-                    s.max_altitude_m = alt
-                s.final_position_ned_m = f.truth.pos_ned_m
-                s.landed = f.truth.on_ground
-                if f.truth.crashed and not s.crashed:
-                    s.crashed = True
-                    world.event(t_ns, WorldEvent.CRASH, {"vehicle": f.vehicle})
+            _summarise(t_ns, truth, summaries, world)
+            frames = phys.step([motors[v] for v in own])
             if tick % 50 == 0:  # every 0.2 s of sim time: a child's death is noticed, waitpid stays cheap
                 for name, code in sup.poll_exits():
                     if name.startswith("autopilot") or name == "network":
@@ -444,6 +457,19 @@ class Launcher:
             f"sim {t_ns / NS_PER_S:7.1f} s  x{rtf:5.1f} real time  armed {armed}/{len(summaries)}  "
             f"in air {in_air}  missions done {done}/{missions}"
         )
+
+
+def _summarise(t_ns: int, truth: list[Any], summaries: list[VehicleSummary], world: WorldSink) -> None:
+    """The summaries after the ground truth of tick ``t_ns`` (a vehicle's first crash is an event)."""
+    for s, tr in zip(summaries, truth, strict=True):
+        alt = -tr.pos_ned_m[2]
+        if alt > s.max_altitude_m:
+            s.max_altitude_m = alt
+        s.final_position_ned_m = tr.pos_ned_m
+        s.landed = tr.on_ground
+        if tr.crashed and not s.crashed:
+            s.crashed = True
+            world.event(t_ns, WorldEvent.CRASH, {"vehicle": s.id})
 
 
 def _mission_argv(address: str, vehicle: int, m: MissionPlan, name: str | None = None) -> list[str]:

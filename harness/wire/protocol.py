@@ -44,14 +44,14 @@ import enum
 import hashlib
 import hmac
 import struct
-from typing import Annotated, Final
+from typing import Annotated, Final, NamedTuple
 
 import msgspec
 
 from harness.core.geo import Vec3
 
-PROTOCOL_VERSION: Final = 2
-"""Bumped on every incompatible change of a message below."""
+PROTOCOL_VERSION: Final = 3
+"""Bumped on every incompatible change of a message below (3: END-TICK-AC carries ``truth``)."""
 
 MAX_FRAME_BYTES: Final = 16 * 1024 * 1024
 """Frames larger than this are refused as malformed (a garbage length prefix must not allocate GBs)."""
@@ -176,12 +176,71 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
 
     ``motors`` are normalised commands in [0, 1] in PX4 quad-X motor order; physics validates them.
     ``status`` is the autopilot's state for recording, packed by :func:`pack_status`.
+    ``truth``: empty, or — from a host that simulates the vehicle's physics itself (``harness run --workers``)
+    — the vehicle's ground truth at ``t_ns`` packed by :func:`pack_truth` (the state its autopilot was just
+    stepped with); the channel then hands that position to type-1 subscribers instead of the BEGIN-TICK-AC's.
     """
 
     t_ns: int
     vehicle: int
     motors: tuple[float, ...]
     status: int = 0
+    truth: bytes = b""
+
+    def __post_init__(self) -> None:  # also on decoding: a malformed truth is a malformed frame
+        if self.truth and len(self.truth) != TRUTH_BYTES:
+            raise ValueError(f"END-TICK-AC truth of {len(self.truth)} bytes, expected {TRUTH_BYTES}")
+
+
+_TRUTH = struct.Struct("<13dB")
+TRUTH_BYTES: Final = _TRUTH.size
+
+
+class TruthReport(NamedTuple):
+    """A vehicle's ground truth as END-TICK-AC carries it (field names as ``harness.fdm.frame.Truth``)."""
+
+    pos_ned_m: Vec3
+    vel_ned_m_s: Vec3
+    quat: tuple[float, float, float, float]
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    on_ground: bool
+    crashed: bool
+
+
+def pack_truth(
+    pos_ned_m: Vec3,
+    vel_ned_m_s: Vec3,
+    quat: tuple[float, float, float, float],
+    lat_deg: float,
+    lon_deg: float,
+    alt_amsl_m: float,
+    on_ground: bool,
+    crashed: bool,
+) -> bytes:
+    """END-TICK-AC ``truth``: 13 little-endian doubles (every bit kept) and a flags byte, 105 bytes."""
+    flags = (1 if on_ground else 0) | (2 if crashed else 0)
+    return _TRUTH.pack(*pos_ned_m, *vel_ned_m_s, *quat, lat_deg, lon_deg, alt_amsl_m, flags)
+
+
+def unpack_truth(data: bytes) -> TruthReport:
+    """The ground truth :func:`pack_truth` packed; :class:`ProtocolError` if ``data`` is not one."""
+    try:
+        v = _TRUTH.unpack(data)
+    except struct.error:
+        raise ProtocolError(f"END-TICK-AC truth of {len(data)} bytes, expected {_TRUTH.size}") from None
+    pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, lat, lon, alt, flags = v
+    return TruthReport((pn, pe, pd), (vn, ve, vd), (qw, qx, qy, qz), lat, lon, alt, bool(flags & 1), bool(flags & 2))
+
+
+def truth_position(data: bytes) -> Vec3:
+    """Only the NED position of a packed truth (what the channel needs for BEGIN-TICK-1)."""
+    x, y, z = _POS.unpack_from(data)
+    return (x, y, z)
+
+
+_POS = struct.Struct("<3d")
 
 
 def pack_status(armed: bool, landed_state: int, main_mode: int, sub_mode: int) -> int:
