@@ -4,7 +4,9 @@ Parameters a ground station sets are kept in ``<run dir>/params/vehicle-<i>.json
 vehicle starts again in the same run directory.
 
 With ``LaunchPlan(autopilots=AutopilotPlacement.PROCESS)``, ``harness run`` starts one of these for all vehicles (one
-process for several vehicles is cheaper than one per vehicle, ``docs/autopilot.md``). Each vehicle gets a
+process for several vehicles is cheaper than one per vehicle, ``docs/autopilot.md``); with ``--workers N``, one per
+share after the first. Given ``--physics FILE`` (the run's ``physics.json``) it steps its vehicles' physics too and
+sends their ground truth up with each END-TICK-AC (``docs/tree.md``, "Every core"). Each vehicle gets a
 MAVLink server on API port ``api_port_base + i`` and the GCS port (one ``MavlinkHub`` thread serves them
 all) and writes ``vehicle-<i>.tlog`` in the run directory: every MAVLink frame it sent or received, each preceded by its 8-byte big-endian Unix time in
 microseconds (the format of QGroundControl and MAVProxy telemetry logs).

@@ -2,8 +2,9 @@
 
 Processes of a run::
 
-    harness run (this process)     physics (JSBSim, N vehicles) + root channel + recorder + progress
-      ├─ autopilot host            all vehicles' autopilots and MAVLink servers (python -m harness.autopilot.host)
+    harness run (this process)     root channel + recorder + progress; physics and autopilots of the first share
+      ├─ autopilot host (each)     physics, autopilots and MAVLink servers of one more share (--workers,
+      │                            python -m harness.autopilot.sitl --physics RUN/physics.json)
       ├─ network (optional)        the type-1 network subscriber
       └─ mission i (per vehicle)   harness mission SCRIPT on the sim clock (type 0)
 
