@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
@@ -69,26 +70,9 @@ def make_autopilots(
     return {v: Autopilot(config_for(v) if config_for else AutopilotConfig(vehicle=v)) for v in vehicles}
 
 
-def serve(
-    client: ChannelClient,
-    autopilots: dict[int, Autopilot],
-    stop: threading.Event | None = None,
-    physics: Physics | None = None,
-) -> int:
-    """Answer ticks until the channel says BYE or closes; returns the number of ticks answered.
-
-    With ``physics`` (simulating exactly the vehicles of ``autopilots``) this host is a worker of
-    ``harness run --workers``: BEGIN-TICK-AC carry no sensor frame; once a tick's are all in, each autopilot
-    steps with its own vehicle's frame, the END-TICK-AC go out with that frame's ground truth, and only
-    then the physics steps with the motors (the root records, the missions run and the network carries
-    their packets meanwhile), so the next tick's frames are ready when its BEGIN-TICK-AC arrive.
-    """
-    if physics is not None and sorted(physics.owned) != sorted(autopilots):
-        raise ScenarioError(
-            f"{client.name}: physics of vehicles {list(physics.owned)}, autopilots of {sorted(autopilots)}"
-        )
+def serve(client: ChannelClient, autopilots: dict[int, Autopilot], stop: threading.Event | None = None) -> int:
+    """Answer ticks until the channel says BYE or closes; returns the number of ticks answered."""
     ticks = 0
-    pending: list[p.BeginTickAC] = []
     while stop is None or not stop.is_set():
         try:
             msgs = client.recv()
@@ -97,28 +81,26 @@ def serve(
         out: list[p.Message] = []
         for msg in msgs:
             if type(msg) is p.BeginTickAC:
-                if physics is None:
-                    out.append(_answer(client, autopilots, msg))
-                    ticks += 1
-                    continue
-                pending.append(msg)
-                if len(pending) == msg.count:
-                    answers, motors = _worker_tick(client, autopilots, physics, pending)
-                    client.send_many(answers)
-                    physics.step(motors)
-                    ticks += len(pending)
-                    pending = []
-            elif isinstance(msg, p.Bye):
+                out.append(_answer(client, autopilots, msg))
+                ticks += 1
+            elif _ends(client, msg):
                 if out:
                     client.send_many(out)
                 return ticks
-            elif isinstance(msg, p.Error):
-                if msg.fatal:
-                    raise SimulationError(f"{client.name}: the channel failed the run: {msg.message}")
-                log.warning("%s: channel error: %s", client.name, msg.message)
         if out:
             client.send_many(out)
     return ticks
+
+
+def _ends(client: ChannelClient, msg: p.Message) -> bool:
+    """BYE ends the host; a fatal ERROR fails it; anything else is ignored here."""
+    if isinstance(msg, p.Bye):
+        return True
+    if isinstance(msg, p.Error):
+        if msg.fatal:
+            raise SimulationError(f"{client.name}: the channel failed the run: {msg.message}")
+        log.warning("%s: channel error: %s", client.name, msg.message)
+    return False
 
 
 def _autopilot_of(client: ChannelClient, autopilots: dict[int, Autopilot], vehicle: int) -> Autopilot:
@@ -140,30 +122,98 @@ def _answer(client: ChannelClient, autopilots: dict[int, Autopilot], msg: p.Begi
     return p.EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), p.pack_status(*ap.tick_status()))
 
 
-def _worker_tick(
-    client: ChannelClient, autopilots: dict[int, Autopilot], physics: Physics, begin: list[p.BeginTickAC]
-) -> tuple[list[p.Message], list[tuple[float, float, float, float]]]:
-    """A tick of a host that steps its vehicles' physics too: the answers (sent before the physics steps)
-    and the motor commands, in the physics' order."""
-    t_ns = begin[0].t_ns
-    if t_ns != physics.t_ns or len(begin) != len(physics.owned) or any(m.t_ns != t_ns for m in begin):
-        raise SimulationError(
-            f"{client.name}: the channel sent {len(begin)} BEGIN-TICK-AC for t={t_ns} ns, but this host "
-            f"simulates vehicles {list(physics.owned)} at t={physics.t_ns} ns"
+class _Inbox:
+    """The messages of one connection, one at a time; None once the channel has ended (BYE, closed)."""
+
+    def __init__(self, client: ChannelClient) -> None:
+        self.client = client
+        self._queue: deque[p.Message] = deque()
+
+    def next(self) -> p.Message | None:
+        while not self._queue:
+            try:
+                self._queue.extend(self.client.recv())
+            except ChannelClosed:
+                return None
+        msg = self._queue.popleft()
+        return None if _ends(self.client, msg) else msg
+
+
+def serve_worker(
+    client: ChannelClient,
+    clock: ChannelClient,
+    autopilots: dict[int, Autopilot],
+    physics: Physics,
+    stop: threading.Event | None = None,
+) -> int:
+    """Fly ``autopilots`` and step their ``physics`` (a worker of ``harness run --workers``) until the run
+    ends; returns the number of ticks stepped.
+
+    The channel asks this host only at the ticks with phases (BEGIN-TICK-AC without a sensor frame); in
+    between, nothing outside can reach its vehicles (missions run only in phase 0), so it runs on alone:
+    from the end of one phase 0 — BEGIN-TICK-1 on ``clock``, a type-1 connection that answers at once —
+    through every tick up to the next phase tick, whose autopilot step is ready when that BEGIN-TICK-AC
+    arrives. The END-TICK-AC then carry every tick since the last (truth, motors, status), and the
+    physics steps once they are sent, while the root runs the phases.
+    """
+    if sorted(physics.owned) != sorted(autopilots):
+        raise ScenarioError(
+            f"{client.name}: physics of vehicles {list(physics.owned)}, autopilots of {sorted(autopilots)}"
         )
-    frames = {f.vehicle: f for f in physics.frames()}
-    motors: dict[int, tuple[float, float, float, float]] = {}
-    out: list[p.Message] = []
-    for msg in begin:
-        ap = _autopilot_of(client, autopilots, msg.vehicle)
-        frame = frames[msg.vehicle]
-        cmd = motors[msg.vehicle] = ap.step(frame)
-        tr = frame.truth
-        truth = p.pack_truth(
-            tr.pos_ned_m, tr.vel_ned_m_s, tr.quat, tr.lat_deg, tr.lon_deg, tr.alt_amsl_m, tr.on_ground, tr.crashed
-        )
-        out.append(p.EndTickAC(t_ns, msg.vehicle, cmd, p.pack_status(*ap.tick_status()), truth))
-    return out, [motors[v] for v in physics.owned]
+    owned = physics.owned
+    ticks, next_phase_ns = 0, 0
+    records: dict[int, list[bytes]] = {v: [] for v in owned}
+    inbox, phases = _Inbox(client), _Inbox(clock)
+    while stop is None or not stop.is_set():
+        while True:  # every tick up to the next phase tick, the autopilots of that one included
+            answers = _step_autopilots(autopilots, physics, records)
+            ticks += 1
+            if physics.t_ns >= next_phase_ns:
+                break
+            physics.step([m for m, _ in answers])
+        begin: list[p.BeginTickAC] = []
+        while not begin or len(begin) < begin[0].count:
+            msg = inbox.next()
+            if msg is None:
+                return ticks
+            if type(msg) is p.BeginTickAC:
+                begin.append(msg)
+        if {m.t_ns for m in begin} != {physics.t_ns} or sorted(m.vehicle for m in begin) != sorted(owned):
+            raise SimulationError(
+                f"{client.name}: the channel asked for vehicles {sorted(m.vehicle for m in begin)} at "
+                f"t={begin[0].t_ns} ns; this host simulates {list(owned)} and is at t={physics.t_ns} ns"
+            )
+        t_ns = physics.t_ns
+        out: list[p.Message] = []
+        for v, (m, status) in zip(owned, answers, strict=True):
+            out.append(p.EndTickAC(t_ns, v, m, status, b"".join(records[v])))
+            records[v].clear()
+        client.send_many(out)
+        physics.step([m for m, _ in answers])
+        while True:  # phase 0 of this tick ends when its phase 1 begins
+            msg = phases.next()
+            if msg is None:
+                return ticks
+            if isinstance(msg, p.BeginTick1) and msg.t_ns == t_ns:
+                clock.send(p.EndTick1(t_ns))
+                next_phase_ns = t_ns + msg.period_ns
+                break
+    return ticks
+
+
+def _step_autopilots(
+    autopilots: dict[int, Autopilot], physics: Physics, records: dict[int, list[bytes]]
+) -> list[tuple[tuple[float, float, float, float], int]]:
+    """Every autopilot's step with its own vehicle's frame at this tick (motors, status), recorded with
+    the frame's truth."""
+    out = []
+    for frame in physics.frames():
+        ap = autopilots[frame.vehicle]
+        motors = ap.step(frame)
+        status = p.pack_status(*ap.tick_status())
+        records[frame.vehicle].append(p.pack_tick(frame.truth, motors, status))
+        out.append((motors, status))
+    return out
 
 
 def run_autopilots(
@@ -195,7 +245,11 @@ def run_autopilots(
         label = name or "autopilot-" + "-".join(str(v) for v in vehicles)
         client = ChannelClient.connect(address, p.PeerKind.AUTOPILOT, label, vehicles=tuple(vehicles), secret=secret)
         try:
-            serve(client, aps, stop, physics)
+            if physics is None:
+                serve(client, aps, stop)
+            else:
+                with ChannelClient.connect(address, p.PeerKind.TYPE1, f"{label}:clock", secret=secret) as clock:
+                    serve_worker(client, clock, aps, physics, stop)
         finally:
             client.close("autopilot host stopping")
     finally:

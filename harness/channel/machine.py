@@ -213,8 +213,8 @@ class TickMachine(Membership):
                 peer, f"sent END-TICK-AC for vehicle {msg.vehicle} at t={msg.t_ns} ns unasked", p.ErrorCode.UNEXPECTED
             )
             return
-        if msg.truth:  # its host steps its physics too: this tick's position comes with the answer
-            self._positions[msg.vehicle] = p.truth_position(msg.truth)
+        if msg.ticks:  # its host steps its physics too: this tick's position comes with the answer
+            self._positions[msg.vehicle] = p.last_position(msg.ticks)
         waiting.discard(msg.vehicle)
         self._etas[msg.vehicle] = msg
         if not waiting:

@@ -32,6 +32,7 @@ from harness.record.sink import WorldSink, open_world
 from harness.record.status import Checkpoint
 from harness.run import swarm, tree
 from harness.run.children import Children
+from harness.run.ledger import Ledger, Row
 from harness.run.link import NativeLink
 from harness.run.ports import allocate
 from harness.run.result import RunResult, RunStatus, VehicleSummary, write_summary
@@ -152,7 +153,7 @@ class Launcher:
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
                 self._start_children(sup, channel.address, lambda: channel.pump(0.001))
-                hosts = len(self._autopilot_groups())
+                hosts = 2 * len(self._autopilot_groups())  # each also has its clock (a type-1 connection)
                 expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
                 start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
                 if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=start_s):
@@ -375,10 +376,9 @@ class Launcher:
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
         own = phys.owned
-        truth: list[Any] = [None] * n
-        """Every vehicle's ground truth at this tick: from this process's physics or a worker's END-TICK-AC."""
         elsewhere = {v: phys.cfg.spawn(v) for v in range(n) if v not in set(own)}
-        """Vehicles whose physics runs in an autopilot host, with their last known position."""
+        """Vehicles whose physics runs in an autopilot host (asked at phase ticks), with their last position."""
+        ledger = Ledger(n)
         while True:
             t_ns = phys.t_ns
             tick = phys.tick
@@ -404,37 +404,26 @@ class Launcher:
                 lag = wall0 + int(t_ns / plan.speed) - self.clock.now_ns()
                 self.clock.sleep_ns(lag)
             tick_start = self.clock.now_ns()
-            etas = link.exchange(t_ns, tick, frames, elsewhere)
+            phase = tick % plan.phase_every == 0
+            etas = link.exchange(t_ns, tick, frames, elsewhere if phase else None)
+            now = self.clock.now_ns()
+            row = Row(tick, t_ns, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3, [None] * n, [()] * n, [0] * n)
             for f in frames:
-                truth[f.vehicle] = f.truth
+                row.truth[f.vehicle] = f.truth
+            row.missing = len(elsewhere)
+            ledger.open(row)
             for e in etas:
-                motors[e.vehicle] = e.motors
-                summaries[e.vehicle].armed = p.unpack_status(e.status)[0]
-                if e.vehicle in elsewhere:
-                    if not e.truth:
-                        raise SimulationError(f"the autopilot host of vehicle {e.vehicle} sent no ground truth")
-                    tr = truth[e.vehicle] = p.unpack_truth(e.truth)
-                    elsewhere[e.vehicle] = tr.pos_ned_m
-            if tick % record_every == 0:
-                now = self.clock.now_ns()
-                for v, tr in enumerate(truth):
-                    world.vehicle(
-                        VehicleSample(
-                            t_ns,
-                            v,
-                            tr.pos_ned_m,
-                            tr.quat,
-                            tr.vel_ned_m_s,
-                            tr.lat_deg,
-                            tr.lon_deg,
-                            tr.alt_amsl_m,
-                            motors[v],
-                            tr.on_ground,
-                            tr.crashed,
-                        )
-                    )
-                world.tick(t_ns, tick, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3)
-            _summarise(t_ns, truth, summaries, world)
+                if e.ticks:
+                    reports = p.unpack_ticks(e.ticks)
+                    ledger.reported(e.vehicle, tick, reports)
+                    elsewhere[e.vehicle] = reports[-1].truth.pos_ned_m
+                else:
+                    motors[e.vehicle] = row.motors[e.vehicle] = e.motors
+                    row.status[e.vehicle] = e.status
+            for done in ledger.complete():
+                self._record(done, record_every, summaries, world)
+            if phase:
+                ledger.check_through(tick)
             frames = phys.step([motors[v] for v in own])
             if tick % 50 == 0:  # every 0.2 s of sim time: a child's death is noticed, waitpid stays cheap
                 for name, code in sup.poll_exits():
@@ -445,6 +434,39 @@ class Launcher:
             if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
                 last_progress = self.clock.now_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
+
+    @staticmethod
+    def _record(row: Row, record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:
+        """A tick every vehicle's truth is known at: recorded (every ``record_every``-th), and the summaries."""
+        t_ns = row.t_ns
+        if row.tick % record_every == 0:
+            for v, tr in enumerate(row.truth):
+                world.vehicle(
+                    VehicleSample(
+                        t_ns,
+                        v,
+                        tr.pos_ned_m,
+                        tr.quat,
+                        tr.vel_ned_m_s,
+                        tr.lat_deg,
+                        tr.lon_deg,
+                        tr.alt_amsl_m,
+                        row.motors[v],
+                        tr.on_ground,
+                        tr.crashed,
+                    )
+                )
+            world.tick(t_ns, row.tick, row.wall_s, row.tick_us)
+        for s, tr, status in zip(summaries, row.truth, row.status, strict=True):
+            s.armed = p.unpack_status(status)[0]
+            alt = -tr.pos_ned_m[2]
+            if alt > s.max_altitude_m:
+                s.max_altitude_m = alt
+            s.final_position_ned_m = tr.pos_ned_m
+            s.landed = tr.on_ground
+            if tr.crashed and not s.crashed:
+                s.crashed = True
+                world.event(t_ns, WorldEvent.CRASH, {"vehicle": s.id})
 
     @staticmethod
     def _progress_line(
@@ -458,19 +480,6 @@ class Launcher:
             f"sim {t_ns / NS_PER_S:7.1f} s  x{rtf:5.1f} real time  armed {armed}/{len(summaries)}  "
             f"in air {in_air}  missions done {done}/{missions}"
         )
-
-
-def _summarise(t_ns: int, truth: list[Any], summaries: list[VehicleSummary], world: WorldSink) -> None:
-    """The summaries after the ground truth of tick ``t_ns`` (a vehicle's first crash is an event)."""
-    for s, tr in zip(summaries, truth, strict=True):
-        alt = -tr.pos_ned_m[2]
-        if alt > s.max_altitude_m:
-            s.max_altitude_m = alt
-        s.final_position_ned_m = tr.pos_ned_m
-        s.landed = tr.on_ground
-        if tr.crashed and not s.crashed:
-            s.crashed = True
-            world.event(t_ns, WorldEvent.CRASH, {"vehicle": s.id})
 
 
 def _mission_argv(address: str, vehicle: int, m: MissionPlan, name: str | None = None) -> list[str]:

@@ -46,8 +46,9 @@ class NativeLink:
         self, t_ns: int, tick: int, frames: Sequence[SensorFrame], elsewhere: Mapping[int, Vec3] | None = None
     ) -> list[p.EndTickAC]:
         """One tick: the BEGIN-TICK-AC of the vehicles simulated here (``frames``) and of those whose
-        physics runs with their autopilot in a worker (``elsewhere``: vehicle -> its last known position;
-        no frame, and the worker's END-TICK-AC brings the truth of this tick); the answers by vehicle."""
+        physics runs with their autopilot in a worker (``elsewhere``, at the ticks with phases: vehicle ->
+        its last known position; no frame, and the worker's END-TICK-AC brings its ticks since the last);
+        the answers by vehicle. A tick with neither is no tick for the channel."""
         remote = elsewhere or {}
         n = len(frames) + len(remote)
         local = self._local
@@ -60,7 +61,7 @@ class NativeLink:
                 msgs.append(p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, encode_frame(f)))
         for v, pos in remote.items():
             msgs.append(p.BeginTickAC(t_ns, tick, v, n, pos, b""))
-        return self.channel.step(msgs)
+        return self.channel.step(msgs) if msgs else []
 
     def close(self) -> None:
         self.channel.close("end of run")
