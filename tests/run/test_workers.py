@@ -13,9 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from harness.core.errors import ScenarioError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.record.world import read_topics
+from harness.run.ledger import Ledger, Row
 from harness.run.tree import parse_workers, worker_groups
+from harness.wire import protocol as p
 from tests.run.flights import MISSIONS, running_sim_time
 from tests.run.test_run import harness, pids_with_run_dir
 
@@ -29,6 +31,38 @@ def test_worker_groups_cover_every_vehicle_once_in_equal_shares() -> None:
         parse_workers("0")
     with pytest.raises(ScenarioError, match="'auto', got 'many'"):
         parse_workers("many")
+
+
+def _row(tick: int, truth: list[object]) -> Row:
+    return Row(tick, tick * 4_000_000, 0.0, 0.0, truth, [(0.0,) * 4] * len(truth), [0] * len(truth))
+
+
+def test_the_ledger_takes_each_tick_of_each_vehicle_once_and_in_order() -> None:
+    """The root's own vehicle 0 is known at every tick; vehicle 1's host reports at phase ticks (every 3rd
+    here) with the ticks since its last report. A tick is complete only with both, in order; a host that
+    reports a tick twice or one the run never stepped, or misses one, fails the run naming the vehicle."""
+    truth = p.TruthReport((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), 47.0, 8.0, 489.0, False, False)
+    ledger = Ledger(2)
+    for tick in range(3):
+        ledger.open(_row(tick, ["own", None]))
+        assert list(ledger.complete()) == []
+    ledger.reported(1, 2, [p.TickReport(truth, (0.5,) * 4, k) for k in range(3)])
+    done = list(ledger.complete())
+    assert [r.tick for r in done] == [0, 1, 2] and [r.status[1] for r in done] == [0, 1, 2]
+    assert all(r.truth == ["own", truth] and r.motors[1] == (0.5,) * 4 for r in done)
+    ledger.check_through(2)
+    ledger.open(_row(3, ["own", None]))
+    with pytest.raises(SimulationError, match="vehicle 1 reported tick 2, which this run did not step"):
+        ledger.reported(1, 3, [p.TickReport(truth, (0.5,) * 4, 0)] * 2)
+    ledger.reported(1, 3, [p.TickReport(truth, (0.5,) * 4, 0)])
+    ledger.open(_row(4, ["own", None]))
+    ledger.open(_row(5, ["own", None]))
+    ledger.reported(1, 5, [p.TickReport(truth, (0.5,) * 4, 0)])  # tick 5 only: tick 4 is missing
+    with pytest.raises(SimulationError, match="vehicle 1 reported tick 5, which it had already reported"):
+        ledger.reported(1, 5, [p.TickReport(truth, (0.5,) * 4, 0)])
+    assert [r.tick for r in ledger.complete()] == [3]
+    with pytest.raises(SimulationError, match=r"no ground truth for vehicles \[1\] at tick 4"):
+        ledger.check_through(5)
 
 
 def _fly(out: Path, workers: int, *scenario: str) -> dict[str, list[dict[str, object]]]:
