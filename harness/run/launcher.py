@@ -407,10 +407,10 @@ class Launcher:
             phase = tick % plan.phase_every == 0
             etas = link.exchange(t_ns, tick, frames, elsewhere if phase else None)
             now = self.clock.now_ns()
-            row = Row(tick, t_ns, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3, [None] * n, [()] * n, [0] * n)
+            truth: list[Any] = [None] * n  # the hosts' vehicles: once they report
             for f in frames:
-                row.truth[f.vehicle] = f.truth
-            row.missing = len(elsewhere)
+                truth[f.vehicle] = f.truth
+            row = Row(tick, t_ns, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3, truth, [()] * n, [0] * n)
             ledger.open(row)
             for e in etas:
                 if e.ticks:
