@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import jsbsim
+import msgspec
 import numpy as np
 
 from harness.core.errors import ScenarioError, SimulationError
@@ -84,6 +85,18 @@ class PhysicsConfig:
         cols = max(1, math.ceil(math.sqrt(self.n_vehicles)))
         return (-(i // cols) * self.spawn_spacing_m, (i % cols) * self.spawn_spacing_m, 0.0)
 
+    def to_json(self) -> bytes:
+        """This configuration as JSON (every float exact): what a worker process builds its share from."""
+        return msgspec.json.encode(self)
+
+    @classmethod
+    def from_json(cls, data: bytes | str) -> PhysicsConfig:
+        """The configuration :meth:`to_json` wrote; :class:`ScenarioError` if ``data`` is not one."""
+        try:
+            return msgspec.json.decode(data, type=cls)
+        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+            raise ScenarioError(f"physics: not a physics configuration: {exc}") from None
+
 
 @dataclass
 class VehicleCounters:
@@ -139,14 +152,28 @@ class _Vehicle:
 
 
 class Physics:
-    """N vehicles in lockstep. Not thread-safe: one caller steps it."""
+    """N vehicles in lockstep. Not thread-safe: one caller steps it.
 
-    def __init__(self, cfg: PhysicsConfig) -> None:
+    ``vehicles``: the indices (of ``cfg.n_vehicles``) this instance simulates, default all of them. Each
+    vehicle is the same wherever it is simulated (its spawn point and its random stream, the ``i``-th child
+    of the run's seed), so a run whose worker processes each step a share has the same ground truth as one
+    process stepping all. ``step`` takes one command per simulated vehicle, in ``vehicles`` order; with no
+    vehicles it only advances the clock.
+    """
+
+    def __init__(self, cfg: PhysicsConfig, vehicles: Sequence[int] | None = None) -> None:
         self.cfg = cfg
         self.substeps = round(cfg.substep_hz / cfg.tick_hz)
         self.tick_ns = round(1e9 / cfg.tick_hz)
+        own = list(range(cfg.n_vehicles)) if vehicles is None else list(vehicles)
+        bad = [i for i in own if not 0 <= i < cfg.n_vehicles]
+        if bad or len(set(own)) != len(own):
+            raise ScenarioError(f"physics: vehicles {own} are not distinct indices below {cfg.n_vehicles}")
         seeds = np.random.SeedSequence(cfg.seed).spawn(cfg.n_vehicles)
-        self.vehicles = [_Vehicle(i, cfg, np.random.default_rng(s)) for i, s in enumerate(seeds)]
+        self.vehicles = [_Vehicle(i, cfg, np.random.default_rng(seeds[i])) for i in own]
+        self.owned: tuple[int, ...] = tuple(own)
+        """The vehicles simulated here, in ``step`` order."""
+        self._by_index = {v.index: v for v in self.vehicles}
         self._t_ns = 0
         self._tick = 0
         self._frames = [self._frame(v) for v in self.vehicles]
@@ -163,10 +190,10 @@ class Physics:
         return list(self._frames)
 
     def counters(self, vehicle: int) -> VehicleCounters:
-        return self.vehicles[vehicle].counters
+        return self._by_index[vehicle].counters
 
     def crashed(self, vehicle: int) -> bool:
-        return self.vehicles[vehicle].crashed
+        return self._by_index[vehicle].crashed
 
     def set_wind(self, wind: WindConfig) -> None:
         """Change the wind of every vehicle (tests, scenario events)."""
