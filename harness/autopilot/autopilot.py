@@ -47,7 +47,6 @@ from harness.core.errors import ScenarioError
 from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
 
-
 _MODE_NUMBERS: dict[FlightMode, tuple[int, int]] = {m: (int(m.value[0]), int(m.value[1])) for m in FlightMode}
 """PX4 (main, sub) mode numbers of each flight mode, for END-TICK-AC (``FlightMode.value`` is an enum
 property: computed once here instead of twice per tick)."""
