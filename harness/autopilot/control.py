@@ -75,6 +75,8 @@ class PositionControl:
         self.vel_up, self.vel_dn = p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"]
         self.thr_min, self.thr_max = p["MPC_THR_MIN"], p["MPC_THR_MAX"]
         self.tilt_max = math.radians(p["MPC_TILTMAX_AIR"])
+        self._cos_tilt_max = math.cos(self.tilt_max)
+        self._sin_tilt_max = math.sqrt(1.0 - self._cos_tilt_max * self._cos_tilt_max)
         self.acc_hor_max = p["MPC_ACC_HOR_MAX"]
 
     def reset(self) -> None:
@@ -135,9 +137,9 @@ class PositionControl:
         bx, by, bz = -ax, -ay, G_M_S2
         bn = math.sqrt(bx * bx + by * by + bz * bz)
         bx, by, bz = bx / bn, by / bn, bz / bn
-        cos_max = math.cos(self.tilt_max)
+        cos_max = self._cos_tilt_max
         if bz < cos_max:
-            s = math.sqrt(1.0 - cos_max * cos_max) / math.sqrt(bx * bx + by * by)
+            s = self._sin_tilt_max / math.sqrt(bx * bx + by * by)
             bx, by, bz = bx * s, by * s, cos_max
         hov = self.hover
         coll = (az * (hov / G_M_S2) - hov) / bz
@@ -329,7 +331,7 @@ class RateControl:
         )
         if integrate:
             ki, lim = self.ki, self.ilim
-            for k, e in ((0, e0), (1, e1), (2, e2)):
+            for k, e in enumerate((e0, e1, e2)):
                 if not ((sat_pos[k] and e > 0.0) or (sat_neg[k] and e < 0.0)):
                     v = i[k] + ki[k] * e * dt
                     i[k] = -lim[k] if v < -lim[k] else (lim[k] if v > lim[k] else v)
