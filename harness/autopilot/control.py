@@ -322,12 +322,13 @@ class RateControl:
         p0, p1, p2 = rates
         q0, q1, q2 = self.prev
         e0, e1, e2 = rates_sp[0] - p0, rates_sp[1] - p1, rates_sp[2] - p2
-        kp, kd, i = self.kp, self.kd, self.i
+        (kp0, kp1, kp2), (kd0, kd1, kd2), i = self.kp, self.kd, self.i
+        i0, i1, i2 = i
         inv = 1.0 / dt if dt > 0.0 else 0.0
         out = (
-            kp[0] * e0 + i[0] - kd[0] * (p0 - q0) * inv,
-            kp[1] * e1 + i[1] - kd[1] * (p1 - q1) * inv,
-            kp[2] * e2 + i[2] - kd[2] * (p2 - q2) * inv,
+            kp0 * e0 + i0 - kd0 * (p0 - q0) * inv,
+            kp1 * e1 + i1 - kd1 * (p1 - q1) * inv,
+            kp2 * e2 + i2 - kd2 * (p2 - q2) * inv,
         )
         if integrate:
             ki, lim = self.ki, self.ilim
