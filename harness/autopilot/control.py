@@ -353,6 +353,24 @@ _K = 0.707107
 Sat = tuple[bool, bool, bool]
 
 
+def _max4(a: float, b: float, c: float, d: float) -> float:
+    """``max(a, b, c, d)``: the first of the largest, as the builtin (an argument replaces only a smaller one)."""
+    if b > a:
+        a = b
+    if c > a:
+        a = c
+    return d if d > a else a
+
+
+def _min4(a: float, b: float, c: float, d: float) -> float:
+    """``min(a, b, c, d)``, as the builtin."""
+    if b < a:
+        a = b
+    if c < a:
+        a = c
+    return d if d < a else a
+
+
 def mix_quad_x(
     roll: float, pitch: float, yaw: float, thrust: float, idle: float = 0.0
 ) -> tuple[tuple[float, float, float, float], Sat, Sat]:
@@ -365,7 +383,9 @@ def mix_quad_x(
     a = _K * (pitch - roll)  # motor 0 and, negated, motor 1
     b = _K * (pitch + roll)  # motor 2 and, negated, motor 3
     m0, m1, m2, m3 = thrust + a, thrust - a, thrust + b, thrust - b
-    span = 2.0 * max(abs(a), abs(b))
+    # (max and min written out: the same choices as the builtins, NaN included, without their calls)
+    aa, ab = abs(a), abs(b)
+    span = 2.0 * (ab if ab > aa else aa)
     room = 1.0 - idle
     rp_sat = span > room
     if rp_sat:
@@ -375,8 +395,8 @@ def mix_quad_x(
         a *= k
         b *= k
         m0, m1, m2, m3 = thrust + a, thrust - a, thrust + b, thrust - b
-    hi = max(m0, m1, m2, m3)
-    lo = min(m0, m1, m2, m3)
+    hi = _max4(m0, m1, m2, m3)
+    lo = _min4(m0, m1, m2, m3)
     if hi > 1.0:
         d = hi - 1.0
         m0, m1, m2, m3 = m0 - d, m1 - d, m2 - d, m3 - d
@@ -384,8 +404,8 @@ def mix_quad_x(
         d = idle - lo
         m0, m1, m2, m3 = m0 + d, m1 + d, m2 + d, m3 + d
     # yaw: +y on motors 0, 1 and -y on motors 2, 3 must keep all four in [idle, 1]
-    ymax = min(1.0 - m0, 1.0 - m1, m2 - idle, m3 - idle)
-    ymin = max(idle - m0, idle - m1, m2 - 1.0, m3 - 1.0)
+    ymax = _min4(1.0 - m0, 1.0 - m1, m2 - idle, m3 - idle)
+    ymin = _max4(idle - m0, idle - m1, m2 - 1.0, m3 - 1.0)
     y = (ymin if yaw < ymin else (ymax if yaw > ymax else yaw)) if ymin <= ymax else 0.0
     m0, m1, m2, m3 = m0 + y, m1 + y, m2 - y, m3 - y
     return (
