@@ -6,6 +6,7 @@ rates (physics 1 kHz, control tick 250 Hz, phases 0/1 every 5th tick = 50 Hz, i.
     .venv/bin/python benchmarks/bench_fullstack.py                 # 1, 10 and 50 vehicles
     .venv/bin/python benchmarks/bench_fullstack.py 1 10 --repeat 3 # chosen sizes, median of 3 runs
     .venv/bin/python benchmarks/bench_fullstack.py 1 --firmware ardupilot  # ArduCopter vehicles, DroneKit missions
+    .venv/bin/python benchmarks/bench_fullstack.py 1 10 --firmware px4,ardupilot-mavsdk  # both personalities, same client
     .venv/bin/python benchmarks/bench_fullstack.py 10 --workers 1,2       # autopilots in 1 and 2 processes, interleaved
 
 With ``--firmware ardupilot`` the vehicles present the ArduCopter personality and each mission is
@@ -133,9 +134,22 @@ class Result:
     out: Path
 
 
-MISSIONS = {"px4": "hover.py", "ardupilot": "hover_dronekit.py", "native": "takeoff_and_land_native.py"}
-"""By --firmware; "native" is a PX4 vehicle with a native-API (mavsdk >= 4) mission that takes off, hovers
-and lands, without radio beacons (issue 13's acceptance flight)."""
+STACKS = {
+    "px4": ("px4", "hover.py"),
+    "ardupilot": ("ardupilot", "hover_dronekit.py"),
+    "ardupilot-mavsdk": ("ardupilot", "hover.py"),
+    "native": ("px4", "takeoff_and_land_native.py"),
+}
+"""By --firmware: the vehicles' personality and each vehicle's mission. "ardupilot-mavsdk" is the ArduCopter
+personality flown by the PX4 benchmark's own MAVSDK mission (MAVSDK speaks both dialects), so the two
+personalities are compared with the same client; "native" is a PX4 vehicle with a native-API (mavsdk >= 4)
+mission that takes off, hovers and lands, without radio beacons (issue 13's acceptance flight)."""
+CLIENTS = {
+    "px4": "MAVSDK (gRPC API)",
+    "ardupilot": "DroneKit",
+    "ardupilot-mavsdk": "MAVSDK (gRPC API)",
+    "native": "MAVSDK (native API, no beacons)",
+}
 VIEWS = ("off", "file", "web")
 """The 3D view: off (``HARNESS_RRD=0``: world.mcap only), file (world.rrd, the default when Rerun is
 installed), web (``--view web``: world.rrd and the live stream served, with no viewer connected)."""
@@ -155,9 +169,9 @@ def run(
         "--network",
         "builtin",
         "--firmware",
-        "px4" if firmware == "native" else firmware,
+        STACKS[firmware][0],
         "--mission",
-        str(ROOT / "missions" / MISSIONS[firmware]),
+        str(ROOT / "missions" / STACKS[firmware][1]),
         "--out",
         str(out),
         *(["--view", "web"] if view == "web" else []),
@@ -193,7 +207,12 @@ def main() -> int:
     ap.add_argument("sizes", nargs="*", type=int, default=[1, 10, 50])
     ap.add_argument("--repeat", type=int, default=1, help="runs per size; the median RTF is reported")
     ap.add_argument("--hover", type=float, default=30.0, help="seconds of hover in the mission")
-    ap.add_argument("--firmware", choices=sorted(MISSIONS), default="px4", help="the vehicles' personality")
+    ap.add_argument(
+        "--firmware",
+        default="px4",
+        help=f"comma-separated personalities and mission clients to compare, runs interleaved: {', '.join(STACKS)} "
+        "(e.g. px4,ardupilot-mavsdk: both personalities with the same MAVSDK mission)",
+    )
     ap.add_argument(
         "--views",
         default="file",
@@ -214,31 +233,35 @@ def main() -> int:
     a = ap.parse_args()
     views = a.views.split(",")
     workers = [int(w) for w in a.workers.split(",")]
-    settings = [(v, w) for v in views for w in workers]
+    stacks = a.firmware.split(",")
+    settings = [(v, w, f) for v in views for w in workers for f in stacks]
     if any(v not in VIEWS for v in views):
         ap.error(f"--views: each of {VIEWS}, got {a.views!r}")
-    client = {"px4": "MAVSDK (gRPC API)", "native": "MAVSDK (native API, no beacons)"}.get(a.firmware, "DroneKit")
-    print(
-        f"full stack ({a.firmware}): JSBSim physics + autopilots + MAVLink + built-in network + 1 {client} mission "
-        "per vehicle"
-    )
+    if any(f not in STACKS for f in stacks):
+        ap.error(f"--firmware: each of {', '.join(STACKS)}, got {a.firmware!r}")
+    for f in stacks:
+        print(
+            f"full stack ({f}): JSBSim physics + {STACKS[f][0]} autopilots + MAVLink + built-in network + "
+            f"1 {CLIENTS[f]} mission per vehicle"
+        )
     print(
         f"rates: physics 1000 Hz, tick 250 Hz, phase 0/1 every 5th tick (20 ms); mission: takeoff, hover "
         f"{a.hover:g} s, land"
-        + ("" if a.firmware == "native" else f"; {BEACON_HZ:g} Hz radio beacons to every vehicle")
+        + ("" if stacks == ["native"] else f"; {BEACON_HZ:g} Hz radio beacons to every vehicle (not native)")
     )
     print(
         f"{'view':>5} {'wk':>2} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
         f"{'bare':>7} {'eff.':>5}   CPU s: harness run / missions / mavsdk_server / network"
     )
     for n in a.sizes:
-        by_setting: dict[tuple[str, int], list[Result]] = {s: [] for s in settings}
+        by_setting: dict[tuple[str, int, str], list[Result]] = {s: [] for s in settings}
         for _ in range(a.repeat):  # interleaved, so a change in the machine's load hits every setting alike
-            for v, w in settings:
-                by_setting[v, w].append(run(n, a.hover, v, a.speed, a.firmware, w))
+            for v, w, f in settings:
+                by_setting[v, w, f].append(run(n, a.hover, v, a.speed, f, w))
         bare = bare_rtf(n)
-        for (v, w), runs in by_setting.items():
-            report(f"{v:>5} {w:>2}", n, sorted(runs, key=lambda x: x.rtf), a.repeat, bare)
+        for (v, w, f), runs in by_setting.items():
+            label = f"{v:>5} {w:>2}" + (f" {f}" if len(stacks) > 1 else "")
+            report(label, n, sorted(runs, key=lambda x: x.rtf), a.repeat, bare)
     return 0
 
 

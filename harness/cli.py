@@ -401,7 +401,10 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--accept", default=None, metavar="tcp://HOST:PORT", help="the root channel's address for joiners")
     r.add_argument("--secret-file", default=None, help="file holding the shared secret (or $HARNESS_SECRET)")
     r.add_argument(
-        "--workers", default=None, metavar="N|auto", help="spread the vehicles' autopilots over N processes (1)"
+        "--workers",
+        default=None,
+        metavar="N|auto",
+        help="spread the vehicles' physics and autopilots over N processes (1)",
     )
     r.add_argument("--join-timeout", type=float, default=600.0, help="wall seconds to wait for the remote vehicles")
 

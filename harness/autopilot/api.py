@@ -70,6 +70,10 @@ class FlightMode(enum.Enum):
     FOLLOW_TARGET = (MainMode.AUTO, AutoSubMode.FOLLOW_TARGET)
     ORBIT = (MainMode.POSCTL, AutoSubMode.NONE, "orbit")
 
+    __hash__ = object.__hash__
+    """Members are singletons compared by identity: hashed by identity too (C), not by name (a Python call
+    in ``Enum``) — the flight core looks modes up in dicts and sets every tick."""
+
     @property
     def main_mode(self) -> MainMode:
         return self.value[0]

@@ -47,6 +47,10 @@ from harness.core.errors import ScenarioError
 from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
 
+_MODE_NUMBERS: dict[FlightMode, tuple[int, int]] = {m: (int(m.value[0]), int(m.value[1])) for m in FlightMode}
+"""PX4 (main, sub) mode numbers of each flight mode, for END-TICK-AC (``FlightMode.value`` is an enum
+property: computed once here instead of twice per tick)."""
+
 
 class OffboardKind(enum.Enum):
     """Which offboard input came last: it is the one OFFBOARD mode flies."""
@@ -105,6 +109,8 @@ class Autopilot:
         self._bell_armed = False
         self._ring_at_ns = 0
         self._rung_status: TickStatus | None = None
+        self._numbered_mode: FlightMode | None = None
+        self._mode_numbers = (0, 0)
         self.failures = FailureInjector(self)
         self.manual = ManualControl(self)
         self.follow = FollowTarget(self)
@@ -219,8 +225,12 @@ class Autopilot:
     def tick_status(self) -> TickStatus:
         """Armed, landed state and PX4 mode, for END-TICK-AC (packed there by ``protocol.pack_status``)."""
         c = self.core
-        mode = c.mode.value
-        return (c.armed, int(c.landed_state) if c.armed else 1, int(mode[0]), int(mode[1]))
+        mode = c.mode
+        if mode is not self._numbered_mode:  # (an enum's hash is a Python call: looked up on a change only)
+            self._numbered_mode = mode
+            self._mode_numbers = _MODE_NUMBERS[mode]
+        main, sub = self._mode_numbers
+        return (c.armed, int(c.landed_state) if c.armed else 1, main, sub)
 
     def state(self) -> VehicleState:
         with self._lock:

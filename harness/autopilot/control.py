@@ -75,6 +75,8 @@ class PositionControl:
         self.vel_up, self.vel_dn = p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"]
         self.thr_min, self.thr_max = p["MPC_THR_MIN"], p["MPC_THR_MAX"]
         self.tilt_max = math.radians(p["MPC_TILTMAX_AIR"])
+        self._cos_tilt_max = math.cos(self.tilt_max)
+        self._sin_tilt_max = math.sqrt(1.0 - self._cos_tilt_max * self._cos_tilt_max)
         self.acc_hor_max = p["MPC_ACC_HOR_MAX"]
 
     def reset(self) -> None:
@@ -135,9 +137,9 @@ class PositionControl:
         bx, by, bz = -ax, -ay, G_M_S2
         bn = math.sqrt(bx * bx + by * by + bz * bz)
         bx, by, bz = bx / bn, by / bn, bz / bn
-        cos_max = math.cos(self.tilt_max)
+        cos_max = self._cos_tilt_max
         if bz < cos_max:
-            s = math.sqrt(1.0 - cos_max * cos_max) / math.sqrt(bx * bx + by * by)
+            s = self._sin_tilt_max / math.sqrt(bx * bx + by * by)
             bx, by, bz = bx * s, by * s, cos_max
         hov = self.hover
         coll = (az * (hov / G_M_S2) - hov) / bz
@@ -320,16 +322,17 @@ class RateControl:
         p0, p1, p2 = rates
         q0, q1, q2 = self.prev
         e0, e1, e2 = rates_sp[0] - p0, rates_sp[1] - p1, rates_sp[2] - p2
-        kp, kd, i = self.kp, self.kd, self.i
+        (kp0, kp1, kp2), (kd0, kd1, kd2), i = self.kp, self.kd, self.i
+        i0, i1, i2 = i
         inv = 1.0 / dt if dt > 0.0 else 0.0
         out = (
-            kp[0] * e0 + i[0] - kd[0] * (p0 - q0) * inv,
-            kp[1] * e1 + i[1] - kd[1] * (p1 - q1) * inv,
-            kp[2] * e2 + i[2] - kd[2] * (p2 - q2) * inv,
+            kp0 * e0 + i0 - kd0 * (p0 - q0) * inv,
+            kp1 * e1 + i1 - kd1 * (p1 - q1) * inv,
+            kp2 * e2 + i2 - kd2 * (p2 - q2) * inv,
         )
         if integrate:
             ki, lim = self.ki, self.ilim
-            for k, e in ((0, e0), (1, e1), (2, e2)):
+            for k, e in enumerate((e0, e1, e2)):
                 if not ((sat_pos[k] and e > 0.0) or (sat_neg[k] and e < 0.0)):
                     v = i[k] + ki[k] * e * dt
                     i[k] = -lim[k] if v < -lim[k] else (lim[k] if v > lim[k] else v)
@@ -350,6 +353,24 @@ _K = 0.707107
 Sat = tuple[bool, bool, bool]
 
 
+def _max4(a: float, b: float, c: float, d: float) -> float:
+    """``max(a, b, c, d)``: the first of the largest, as the builtin (an argument replaces only a smaller one)."""
+    if b > a:
+        a = b
+    if c > a:
+        a = c
+    return d if d > a else a
+
+
+def _min4(a: float, b: float, c: float, d: float) -> float:
+    """``min(a, b, c, d)``, as the builtin."""
+    if b < a:
+        a = b
+    if c < a:
+        a = c
+    return d if d < a else a
+
+
 def mix_quad_x(
     roll: float, pitch: float, yaw: float, thrust: float, idle: float = 0.0
 ) -> tuple[tuple[float, float, float, float], Sat, Sat]:
@@ -362,7 +383,9 @@ def mix_quad_x(
     a = _K * (pitch - roll)  # motor 0 and, negated, motor 1
     b = _K * (pitch + roll)  # motor 2 and, negated, motor 3
     m0, m1, m2, m3 = thrust + a, thrust - a, thrust + b, thrust - b
-    span = 2.0 * max(abs(a), abs(b))
+    # (max and min written out: the same choices as the builtins, NaN included, without their calls)
+    aa, ab = abs(a), abs(b)
+    span = 2.0 * (ab if ab > aa else aa)
     room = 1.0 - idle
     rp_sat = span > room
     if rp_sat:
@@ -372,8 +395,8 @@ def mix_quad_x(
         a *= k
         b *= k
         m0, m1, m2, m3 = thrust + a, thrust - a, thrust + b, thrust - b
-    hi = max(m0, m1, m2, m3)
-    lo = min(m0, m1, m2, m3)
+    hi = _max4(m0, m1, m2, m3)
+    lo = _min4(m0, m1, m2, m3)
     if hi > 1.0:
         d = hi - 1.0
         m0, m1, m2, m3 = m0 - d, m1 - d, m2 - d, m3 - d
@@ -381,8 +404,8 @@ def mix_quad_x(
         d = idle - lo
         m0, m1, m2, m3 = m0 + d, m1 + d, m2 + d, m3 + d
     # yaw: +y on motors 0, 1 and -y on motors 2, 3 must keep all four in [idle, 1]
-    ymax = min(1.0 - m0, 1.0 - m1, m2 - idle, m3 - idle)
-    ymin = max(idle - m0, idle - m1, m2 - 1.0, m3 - 1.0)
+    ymax = _min4(1.0 - m0, 1.0 - m1, m2 - idle, m3 - idle)
+    ymin = _max4(idle - m0, idle - m1, m2 - 1.0, m3 - 1.0)
     y = (ymin if yaw < ymin else (ymax if yaw > ymax else yaw)) if ymin <= ymax else 0.0
     m0, m1, m2, m3 = m0 + y, m1 + y, m2 - y, m3 - y
     return (

@@ -167,6 +167,14 @@ class Estimator:
         w, x, y, z = self.q
         gx, gy, gz = frame.imu.gyro_body_rad_s
         b = self.bias
+        t_ns = self._t_ns
+        slow = t_ns > self._fast_until_ns  # converged: the normal correction weights
+        # the rotation body -> world R(q), each term formed once (the same products as written out in full)
+        xx, yy, zz = x * x, y * y, z * z
+        xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+        r00, r01, r02 = 1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)
+        r10, r11, r12 = 2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)
+        r20, r21, r22 = 2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)
         ex = ey = ez = 0.0
         # accelerometer: measured "up" (specific force) versus estimated up = R^T (g - a_lin) / |.|
         fn = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -176,11 +184,11 @@ class Estimator:
             rl = math.sqrt(rn * rn + re * re + rd * rd)
             rn, re, rd = rn / rl, re / rl, rd / rl
             # world -> body: R^T v
-            vx = (1 - 2 * (y * y + z * z)) * rn + 2 * (x * y + w * z) * re + 2 * (x * z - w * y) * rd
-            vy = 2 * (x * y - w * z) * rn + (1 - 2 * (x * x + z * z)) * re + 2 * (y * z + w * x) * rd
-            vz = 2 * (x * z + w * y) * rn + 2 * (y * z - w * x) * re + (1 - 2 * (x * x + y * y)) * rd
+            vx = r00 * rn + r10 * re + r20 * rd
+            vy = r01 * rn + r11 * re + r21 * rd
+            vz = r02 * rn + r12 * re + r22 * rd
             mx, my, mz = fx / fn, fy / fn, fz / fn
-            k = self._w_acc if self._t_ns > self._fast_until_ns else 10.0 * self._w_acc
+            k = self._w_acc if slow else 10.0 * self._w_acc
             ex = k * (my * vz - mz * vy)
             ey = k * (mz * vx - mx * vz)
             ez = k * (mx * vy - my * vx)
@@ -189,22 +197,22 @@ class Estimator:
             self.last_mag_ns = frame.t_ns
             bx, by, bz = mag.field_body_gauss
             # field in world: R m; its heading error is held until the next sample (mag is slower than the tick)
-            wn = (1 - 2 * (y * y + z * z)) * bx + 2 * (x * y - w * z) * by + 2 * (x * z + w * y) * bz
-            we = 2 * (x * y + w * z) * bx + (1 - 2 * (x * x + z * z)) * by + 2 * (y * z - w * x) * bz
+            wn = r00 * bx + r01 * by + r02 * bz
+            we = r10 * bx + r11 * by + r12 * bz
             if wn * wn + we * we > 1e-6:
                 err = math.atan2(we, wn) - self._decl
                 self._mag_err = (err + math.pi) % (2.0 * math.pi) - math.pi
-        if self._t_ns - self.last_mag_ns < 500_000_000:
+        if t_ns - self.last_mag_ns < 500_000_000:
             # world-z correction -k*err, into body: R^T (0, 0, 1)
-            c = -self._w_mag * self._mag_err * (1.0 if self._t_ns > self._fast_until_ns else 10.0)
-            ex += c * 2 * (x * z - w * y)
-            ey += c * 2 * (y * z + w * x)
-            ez += c * (1 - 2 * (x * x + y * y))
+            c = -self._w_mag * self._mag_err * (1.0 if slow else 10.0)
+            ex += c * r20
+            ey += c * r21
+            ez += c * r22
         kb = self._w_bias * dt
-        b[0] -= kb * ex
-        b[1] -= kb * ey
-        b[2] -= kb * ez
-        p, q_, r = gx - b[0], gy - b[1], gz - b[2]
+        b0 = b[0] = b[0] - kb * ex
+        b1 = b[1] = b[1] - kb * ey
+        b2 = b[2] = b[2] - kb * ez
+        p, q_, r = gx - b0, gy - b1, gz - b2
         self.rates = (p, q_, r)
         ox, oy, oz = p + ex, q_ + ey, r + ez
         h = 0.5 * dt
@@ -217,24 +225,29 @@ class Estimator:
 
     def _position(self, frame: SensorFrame, fx: float, fy: float, fz: float, dt: float) -> None:
         w, x, y, z = self.q
-        an = (1 - 2 * (y * y + z * z)) * fx + 2 * (x * y - w * z) * fy + 2 * (x * z + w * y) * fz + self.abn
-        ae = 2 * (x * y + w * z) * fx + (1 - 2 * (x * x + z * z)) * fy + 2 * (y * z - w * x) * fz + self.abe
-        ad = 2 * (x * z - w * y) * fx + 2 * (y * z + w * x) * fy + (1 - 2 * (x * x + y * y)) * fz + G_M_S2 + self.abd
+        xx, yy, zz = x * x, y * y, z * z
+        xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+        an = (1 - 2 * (yy + zz)) * fx + 2 * (xy - wz) * fy + 2 * (xz + wy) * fz + self.abn
+        ae = 2 * (xy + wz) * fx + (1 - 2 * (xx + zz)) * fy + 2 * (yz - wx) * fz + self.abe
+        ad = 2 * (xz - wy) * fx + 2 * (yz + wx) * fy + (1 - 2 * (xx + yy)) * fz + G_M_S2 + self.abd
         self.acc_d = ad
         h = 0.5 * dt * dt
-        self.pn += self.vn * dt + an * h
-        self.pe += self.ve * dt + ae * h
-        self.pd += self.vd * dt + ad * h
-        self.vn += an * dt
-        self.ve += ae * dt
-        self.vd += ad * dt
+        vn, ve, vd = self.vn, self.ve, self.vd
+        self.pn += vn * dt + an * h
+        self.pe += ve * dt + ae * h
+        self.pd += vd * dt + ad * h
+        self.vn = vn + an * dt
+        self.ve = ve + ae * dt
+        self.vd = vd + ad * dt
         t = frame.t_ns
         entry = (t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd)
-        if len(self._hist) < _HIST:
-            self._hist.append(entry)
+        hist = self._hist
+        if len(hist) < _HIST:
+            hist.append(entry)
         else:
-            self._hist[self._hist_i] = entry
-            self._hist_i = (self._hist_i + 1) % _HIST
+            i = self._hist_i
+            hist[i] = entry
+            self._hist_i = (i + 1) % _HIST
         baro = frame.baro
         if baro is not None:
             self._fuse_baro(baro.alt_amsl_m, t)

@@ -76,6 +76,8 @@ class FlightCore:
             self.hover_thrust = self._hover = self.pos_ctl.hover = self._hover_param
         self._hte = bool(p["MPC_USE_HTE"])
         self._fac = p["THR_MDL_FAC"]
+        a = 1.0 - self._fac  # the thrust model's inverse: thrust = f u^2 + (1 - f) u (constants of _rates_to_motors)
+        self._fac_inv = (a, a * a, 4.0 * self._fac, 2.0 * self._fac)
 
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
         if self.params.version != self._ver:
@@ -205,8 +207,7 @@ class FlightCore:
             m = (sq(m[0]), sq(m[1]), sq(m[2]), sq(m[3]))
         elif f > 0.0:
             # invert thrust = f u^2 + (1 - f) u
-            a = 1.0 - f
-            a2, f4, f2 = a * a, 4.0 * f, 2.0 * f
+            a, a2, f4, f2 = self._fac_inv
             sq = math.sqrt
             m = (
                 (sq(a2 + f4 * m[0]) - a) / f2,

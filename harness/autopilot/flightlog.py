@@ -19,6 +19,8 @@ from harness.autopilot.params import Params, ParamType
 from harness.autopilot.supervisor import Supervised
 from harness.autopilot.ulog import Topic, UlogWriter
 
+_NO_ORIGIN = (math.nan, math.nan, math.nan)
+_UNUSED_OUTPUTS = (0.0,) * 12
 FAST_NS = 20_000_000
 MEDIUM_NS = 100_000_000
 SLOW_NS = 500_000_000
@@ -130,21 +132,21 @@ class FlightLog:
         status = (c.armed, c.mode, bool(ap.failsafe))
         if t >= nxt[FAST_NS]:
             nxt[FAST_NS] = t + FAST_NS
-            w.data("vehicle_attitude", (us, *e.q))
+            data = w.data
+            data("vehicle_attitude", (us, *e.q))
             ref = e.ref
             valid = e.pos_valid
-            w.data(
+            hv = e.height_valid
+            if ref is not None:
+                origin = (math.degrees(ref.lat_rad), math.degrees(ref.lon_rad), ref.alt_m)
+            else:
+                origin = _NO_ORIGIN
+            data(
                 "vehicle_local_position",
-                (us, e.pn, e.pe, e.pd, e.vn, e.ve, e.vd, 0.0, 0.0, e.acc_d, e.yaw)
-                + (
-                    (math.degrees(ref.lat_rad), math.degrees(ref.lon_rad), ref.alt_m)
-                    if ref is not None
-                    else (math.nan, math.nan, math.nan)
-                )
-                + (valid, e.height_valid, valid, e.height_valid),
+                (us, e.pn, e.pe, e.pd, e.vn, e.ve, e.vd, 0.0, 0.0, e.acc_d, e.yaw, *origin, valid, hv, valid, hv),
             )
-            w.data("sensor_combined", (us, *e.rates, 4000, 0, *e.accel_body, 4000))
-            w.data("actuator_outputs", (us, 4, *c.motors, *([0.0] * 12)))
+            data("sensor_combined", (us, *e.rates, 4000, 0, *e.accel_body, 4000))
+            data("actuator_outputs", (us, 4, *c.motors, *_UNUSED_OUTPUTS))
         if t >= nxt[MEDIUM_NS]:
             nxt[MEDIUM_NS] = t + MEDIUM_NS
             lat, lon, alt = e.geo()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
@@ -22,6 +23,7 @@ import msgspec
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.core.errors import ScenarioError, SimulationError
 from harness.fdm.frame import decode_frame
+from harness.fdm.physics import Physics
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
 
@@ -71,7 +73,6 @@ def make_autopilots(
 def serve(client: ChannelClient, autopilots: dict[int, Autopilot], stop: threading.Event | None = None) -> int:
     """Answer ticks until the channel says BYE or closes; returns the number of ticks answered."""
     ticks = 0
-    BeginTickAC, EndTickAC = p.BeginTickAC, p.EndTickAC
     while stop is None or not stop.is_set():
         try:
             msgs = client.recv()
@@ -79,30 +80,140 @@ def serve(client: ChannelClient, autopilots: dict[int, Autopilot], stop: threadi
             return ticks
         out: list[p.Message] = []
         for msg in msgs:
-            if type(msg) is BeginTickAC:
-                ap = autopilots.get(msg.vehicle)
-                if ap is None:
-                    raise SimulationError(
-                        f"{client.name}: the channel sent a tick for vehicle {msg.vehicle}, "
-                        f"but this host flies {sorted(autopilots)}"
-                    )
-                try:
-                    frame = decode_frame(msg.frame)
-                except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-                    raise SimulationError(f"{client.name}: bad sensor frame for vehicle {msg.vehicle}: {exc}") from None
-                out.append(EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), p.pack_status(*ap.tick_status())))
+            if type(msg) is p.BeginTickAC:
+                out.append(_answer(client, autopilots, msg))
                 ticks += 1
-            elif isinstance(msg, p.Bye):
+            elif _ends(client, msg):
                 if out:
                     client.send_many(out)
                 return ticks
-            elif isinstance(msg, p.Error):
-                if msg.fatal:
-                    raise SimulationError(f"{client.name}: the channel failed the run: {msg.message}")
-                log.warning("%s: channel error: %s", client.name, msg.message)
         if out:
             client.send_many(out)
     return ticks
+
+
+def _ends(client: ChannelClient, msg: p.Message) -> bool:
+    """BYE ends the host; a fatal ERROR fails it; anything else is ignored here."""
+    if isinstance(msg, p.Bye):
+        return True
+    if isinstance(msg, p.Error):
+        if msg.fatal:
+            raise SimulationError(f"{client.name}: the channel failed the run: {msg.message}")
+        log.warning("%s: channel error: %s", client.name, msg.message)
+    return False
+
+
+def _autopilot_of(client: ChannelClient, autopilots: dict[int, Autopilot], vehicle: int) -> Autopilot:
+    ap = autopilots.get(vehicle)
+    if ap is None:
+        raise SimulationError(
+            f"{client.name}: the channel sent a tick for vehicle {vehicle}, but this host flies {sorted(autopilots)}"
+        )
+    return ap
+
+
+def _answer(client: ChannelClient, autopilots: dict[int, Autopilot], msg: p.BeginTickAC) -> p.EndTickAC:
+    """One autopilot's step with the sensor frame its BEGIN-TICK-AC brought."""
+    ap = _autopilot_of(client, autopilots, msg.vehicle)
+    try:
+        frame = decode_frame(msg.frame)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        raise SimulationError(f"{client.name}: bad sensor frame for vehicle {msg.vehicle}: {exc}") from None
+    return p.EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), p.pack_status(*ap.tick_status()))
+
+
+class _Inbox:
+    """The messages of one connection, one at a time; None once the channel has ended (BYE, closed)."""
+
+    def __init__(self, client: ChannelClient) -> None:
+        self.client = client
+        self._queue: deque[p.Message] = deque()
+
+    def next(self) -> p.Message | None:
+        while not self._queue:
+            try:
+                self._queue.extend(self.client.recv())
+            except ChannelClosed:
+                return None
+        msg = self._queue.popleft()
+        return None if _ends(self.client, msg) else msg
+
+
+def serve_worker(
+    client: ChannelClient,
+    clock: ChannelClient,
+    autopilots: dict[int, Autopilot],
+    physics: Physics,
+    stop: threading.Event | None = None,
+) -> int:
+    """Fly ``autopilots`` and step their ``physics`` (a worker of ``harness run --workers``) until the run
+    ends; returns the number of ticks stepped.
+
+    The channel asks this host only at the ticks with phases (BEGIN-TICK-AC without a sensor frame); in
+    between, nothing outside can reach its vehicles (missions run only in phase 0), so it runs on alone:
+    from the end of one phase 0 — BEGIN-TICK-1 on ``clock``, a type-1 connection that answers at once —
+    through every tick up to the next phase tick, whose autopilot step is ready when that BEGIN-TICK-AC
+    arrives. The END-TICK-AC then carry every tick since the last (truth, motors, status), and the
+    physics steps once they are sent, while the root runs the phases.
+    """
+    if sorted(physics.owned) != sorted(autopilots):
+        raise ScenarioError(
+            f"{client.name}: physics of vehicles {list(physics.owned)}, autopilots of {sorted(autopilots)}"
+        )
+    owned = physics.owned
+    ticks, next_phase_ns = 0, 0
+    records: dict[int, list[bytes]] = {v: [] for v in owned}
+    inbox, phases = _Inbox(client), _Inbox(clock)
+    while stop is None or not stop.is_set():
+        while True:  # every tick up to the next phase tick, the autopilots of that one included
+            answers = _step_autopilots(autopilots, physics, records)
+            ticks += 1
+            if physics.t_ns >= next_phase_ns:
+                break
+            physics.step([m for m, _ in answers])
+        begin: list[p.BeginTickAC] = []
+        while not begin or len(begin) < begin[0].count:
+            msg = inbox.next()
+            if msg is None:
+                return ticks
+            if type(msg) is p.BeginTickAC:
+                begin.append(msg)
+        if {m.t_ns for m in begin} != {physics.t_ns} or sorted(m.vehicle for m in begin) != sorted(owned):
+            raise SimulationError(
+                f"{client.name}: the channel asked for vehicles {sorted(m.vehicle for m in begin)} at "
+                f"t={begin[0].t_ns} ns; this host simulates {list(owned)} and is at t={physics.t_ns} ns"
+            )
+        t_ns = physics.t_ns
+        out: list[p.Message] = []
+        for v, (m, status) in zip(owned, answers, strict=True):
+            out.append(p.EndTickAC(t_ns, v, m, status, b"".join(records[v])))
+            records[v].clear()
+        client.send_many(out)
+        physics.step([m for m, _ in answers])
+        while True:  # phase 0 of this tick ends when its phase 1 begins
+            msg = phases.next()
+            if msg is None:
+                return ticks
+            if isinstance(msg, p.BeginTick1) and msg.t_ns == t_ns:
+                clock.send(p.EndTick1(t_ns))
+                next_phase_ns = t_ns + msg.period_ns
+                break
+    return ticks
+
+
+def _step_autopilots(
+    autopilots: dict[int, Autopilot], physics: Physics, records: dict[int, list[bytes]]
+) -> list[tuple[tuple[float, float, float, float], int]]:
+    """Every autopilot's step with its own vehicle's frame at this tick (motors, status), recorded with
+    the frame's truth."""
+    out = []
+    for frame in physics.frames():
+        ap = autopilots[frame.vehicle]
+        motors = ap.step(frame)
+        status = p.pack_status(*ap.tick_status())
+        records[frame.vehicle].append(p.pack_tick(frame.truth, motors, status))
+        out.append((motors, status))
+    return out
 
 
 def run_autopilots(
@@ -115,10 +226,12 @@ def run_autopilots(
     secret: bytes | None = None,
     stop: threading.Event | None = None,
     autopilots: dict[int, Autopilot] | None = None,
+    physics: Physics | None = None,
 ) -> dict[int, Autopilot]:
     """Fly ``vehicles`` in lockstep with the channel at ``address`` until the run ends.
 
-    ``config_for(v)`` gives each vehicle's configuration; ``attach(ap)`` plugs in the MAVLink side.
+    ``config_for(v)`` gives each vehicle's configuration; ``attach(ap)`` plugs in the MAVLink side;
+    ``physics`` (of exactly ``vehicles``): this host steps their physics too (:func:`serve`).
     Returns the autopilots (their final state is readable after the run).
     """
     aps = autopilots if autopilots is not None else make_autopilots(vehicles, config_for)
@@ -132,7 +245,11 @@ def run_autopilots(
         label = name or "autopilot-" + "-".join(str(v) for v in vehicles)
         client = ChannelClient.connect(address, p.PeerKind.AUTOPILOT, label, vehicles=tuple(vehicles), secret=secret)
         try:
-            serve(client, aps, stop)
+            if physics is None:
+                serve(client, aps, stop)
+            else:
+                with ChannelClient.connect(address, p.PeerKind.TYPE1, f"{label}:clock", secret=secret) as clock:
+                    serve_worker(client, clock, aps, physics, stop)
         finally:
             client.close("autopilot host stopping")
     finally:

@@ -119,7 +119,7 @@ class ManualControl:
         ap = self.ap
         c = ap.core
         nav = c.nav
-        if c.mode not in STICK_MODES or not c.armed or self.last_ns is None:
+        if self.last_ns is None or not c.armed or c.mode not in STICK_MODES:
             nav.manual_att = None
             self._hold = None
             return

@@ -4,7 +4,9 @@ Parameters a ground station sets are kept in ``<run dir>/params/vehicle-<i>.json
 vehicle starts again in the same run directory.
 
 With ``LaunchPlan(autopilots=AutopilotPlacement.PROCESS)``, ``harness run`` starts one of these for all vehicles (one
-process for several vehicles is cheaper than one per vehicle, ``docs/autopilot.md``). Each vehicle gets a
+process for several vehicles is cheaper than one per vehicle, ``docs/autopilot.md``); with ``--workers N``, one per
+share after the first. Given ``--physics FILE`` (the run's ``physics.json``) it steps its vehicles' physics too and
+sends their ground truth up with each END-TICK-AC (``docs/tree.md``, "Every core"). Each vehicle gets a
 MAVLink server on API port ``api_port_base + i`` and the GCS port (one ``MavlinkHub`` thread serves them
 all) and writes ``vehicle-<i>.tlog`` in the run directory: every MAVLink frame it sent or received, each preceded by its 8-byte big-endian Unix time in
 microseconds (the format of QGroundControl and MAVProxy telemetry logs).
@@ -34,8 +36,9 @@ from harness.autopilot.mavlink.runlocal import RunLocalPeers
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
 from harness.core.clock import WALL, Clock
-from harness.core.errors import HarnessError
+from harness.core.errors import HarnessError, ScenarioError
 from harness.core.secrets import read_signing_key
+from harness.fdm.physics import Physics, PhysicsConfig
 
 log = logging.getLogger(__name__)
 
@@ -143,6 +146,15 @@ def vehicle_ports(
     )
 
 
+def _physics(path: Path, vehicles: Sequence[int]) -> Physics:
+    """The physics of ``vehicles`` as ``harness run`` configured the whole run in ``path``."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ScenarioError(f"--physics {path}: cannot read it ({exc.strerror})") from None
+    return Physics(PhysicsConfig.from_json(data), vehicles)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m harness.autopilot.sitl", description=__doc__)
     ap.add_argument("--address", required=True, help="channel address")
@@ -164,6 +176,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--tcp-port-step", type=int, default=1)
     ap.add_argument("--gcs-extra-ports", default="", help="comma-separated extra UDP outputs of ArduPilot vehicles")
     ap.add_argument("--tcp-sim-clients", action="store_true", help="TCP clients are missions on sim time (a run)")
+    ap.add_argument(
+        "--physics",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="step these vehicles' physics here too, configured by FILE (JSON, written by harness run)",
+    )
+    ap.add_argument("--name", default=None, help="this process's name in the channel")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
@@ -174,6 +194,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         extra = tuple(int(p) for p in a.gcs_extra_ports.split(",") if p.strip())
         firmwares = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
+        physics = _physics(a.physics, vehicles) if a.physics is not None else None
     except (ValueError, json.JSONDecodeError) as exc:
         log.error("autopilot process: bad argument: %s", exc)
         return 2
@@ -208,6 +229,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 firmware_of(firmwares, autopilot.vehicle),
                 trust,
             ),
+            name=a.name,
+            physics=physics,
         )
     except HarnessError as exc:
         log.error("%s", exc)

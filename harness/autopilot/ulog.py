@@ -32,6 +32,7 @@ _TYPES: dict[str, str] = {
 }
 
 _MSG = struct.Struct("<HB")
+_DATA = ord("D")
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,8 @@ class UlogWriter:
         self._buf = bytearray(MAGIC + bytes([VERSION]) + struct.pack("<Q", start_us))
         self._message(b"B", bytes(16) + bytes(24))  # compat, incompat flags; no appended data
         self._topics: dict[str, tuple[int, struct.Struct]] = {}
+        self._data: dict[str, tuple[struct.Struct, int, int]] = {}
+        """Per topic: one struct for a whole data message (header, message id, fields), its size field, its id."""
 
     def _message(self, kind: bytes, payload: bytes) -> None:
         if len(payload) > 0xFFFF:
@@ -102,12 +105,15 @@ class UlogWriter:
             self._message(b"F", topic.format.encode())
         for msg_id, topic in enumerate(topics):
             self._message(b"A", struct.pack("<BH", 0, msg_id) + topic.name.encode())
-            self._topics[topic.name] = (msg_id, topic.packer())
+            packer = topic.packer()
+            self._topics[topic.name] = (msg_id, packer)
+            whole = struct.Struct("<HBH" + packer.format[1:])
+            self._data[topic.name] = (whole, 2 + packer.size, msg_id)
 
     def data(self, name: str, values: Sequence[object]) -> None:
         """One sample of topic ``name``: values in field order (arrays flattened), timestamp first."""
-        msg_id, packer = self._topics[name]
-        self._message(b"D", struct.pack("<H", msg_id) + packer.pack(*values))
+        whole, size, msg_id = self._data[name]  # (the bytes of _message(b"D", msg_id + fields), packed at once)
+        self._buf += whole.pack(size, _DATA, msg_id, *values)
 
     def log(self, level: int, timestamp_us: int, text: str) -> None:
         """A logged string ('L'); ``level`` is the syslog level 0 (emergency) … 7 (debug)."""

@@ -213,6 +213,8 @@ class TickMachine(Membership):
                 peer, f"sent END-TICK-AC for vehicle {msg.vehicle} at t={msg.t_ns} ns unasked", p.ErrorCode.UNEXPECTED
             )
             return
+        if msg.ticks:  # its host steps its physics too: this tick's position comes with the answer
+            self._positions[msg.vehicle] = p.last_position(msg.ticks)
         waiting.discard(msg.vehicle)
         self._etas[msg.vehicle] = msg
         if not waiting:
@@ -358,7 +360,7 @@ class TickMachine(Membership):
         self.fault(peer, why, p.ErrorCode.PEER_LOST)
 
     def fault(self, peer: PeerState, why: str, code: p.ErrorCode) -> None:
-        """Drop ``peer`` (type 0, optionally type 1) or fail the run (everything else)."""
+        """Drop ``peer`` (type 0, optionally type 1) or fail the run (everything else: reported by its runner)."""
         if peer.closed:
             return
         if peer.upstream:
@@ -369,7 +371,7 @@ class TickMachine(Membership):
         )
         message = f"{peer.label}{peer.vehicle_note} {why}"
         self.faults.append(Fault(peer.name, kind.name, peer.vehicle, why, self.tick, fatal))
-        log.error("channel %s: %s", self.name, message)
+        log.log(logging.INFO if fatal else logging.ERROR, "channel %s: %s", self.name, message)
         self.close(peer, p.encode(p.Error(code, message, fatal=True)))
         if kind == p.PeerKind.TYPE0:
             self.mission_exits.append(MissionExit(peer.name, peer.vehicle, -1, f"dropped: {why}"))
@@ -582,8 +584,6 @@ class TickMachine(Membership):
 # the states the hot path compares against, bound once (a module global is one lookup, an enum member two)
 _IDLE, _COLLECTING, _AWAITING = TickState.IDLE, TickState.COLLECTING, TickState.AWAITING_HOLDERS
 _ANSWERED, _PENDING, _ZERO, _CHILD = TickState.ANSWERED, PhaseState.PENDING, PhaseState.ZERO, Role.CHILD
-
-
 _by_vehicle = operator.attrgetter("vehicle")
 _IN_PROCESS = PeerLink.IN_PROCESS
 

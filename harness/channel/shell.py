@@ -534,7 +534,7 @@ class Channel:
     def _fail_run(self, message: str) -> None:
         self._flush_dirty()
         self.failure = message
-        log.error("channel %s: run failed: %s", self.config.name, message)
+        log.info("channel %s: run failed: %s", self.config.name, message)  # whoever runs the channel reports it
         data = p.encode(p.Error(p.ErrorCode.PEER_LOST, message, fatal=True))
         for conn in list(self._conns.values()):
             with contextlib.suppress(OSError):

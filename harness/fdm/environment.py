@@ -102,18 +102,25 @@ class Turbulence:
         self.gust = [0.0, 0.0, 0.0]
         speed = math.sqrt(sum(c * c for c in cfg.steady_ned_m_s)) + 1.0
         self.tau_s = cfg.turbulence_length_m / speed
+        self._sigma = cfg.turbulence_sigma_m_s
+        self._dt_s = math.nan
+        self._ab = (0.0, 0.0)
+        """(a, b) of the last ``dt_s`` (the tick is fixed: computed once)."""
 
     def step(self, dt_s: float) -> tuple[float, float, float]:
         """Advance by ``dt_s`` and return the wind (steady + gust) in NED [m/s]."""
-        sigma = self.cfg.turbulence_sigma_m_s
+        sigma = self._sigma
         w = self.cfg.steady_ned_m_s
         if sigma <= 0:
             return w
-        a = math.exp(-dt_s / self.tau_s)
-        b = sigma * math.sqrt(1.0 - a * a)
-        z = self.rng.standard_normal(3)
+        if dt_s != self._dt_s:
+            a = math.exp(-dt_s / self.tau_s)
+            self._ab = (a, sigma * math.sqrt(1.0 - a * a))
+            self._dt_s = dt_s
+        a, b = self._ab
+        z0, z1, z2 = self.rng.standard_normal(3).tolist()
         g = self.gust
-        g[0] = a * g[0] + b * float(z[0])
-        g[1] = a * g[1] + b * float(z[1])
-        g[2] = a * g[2] + b * float(z[2]) * 0.5  # vertical gusts are weaker near the ground
-        return w[0] + g[0], w[1] + g[1], w[2] + g[2]
+        g0 = g[0] = a * g[0] + b * z0
+        g1 = g[1] = a * g[1] + b * z1
+        g2 = g[2] = a * g[2] + b * z2 * 0.5  # vertical gusts are weaker near the ground
+        return w[0] + g0, w[1] + g1, w[2] + g2

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import jsbsim
+import msgspec
 import numpy as np
 
 from harness.core.errors import ScenarioError, SimulationError
@@ -84,6 +85,18 @@ class PhysicsConfig:
         cols = max(1, math.ceil(math.sqrt(self.n_vehicles)))
         return (-(i // cols) * self.spawn_spacing_m, (i % cols) * self.spawn_spacing_m, 0.0)
 
+    def to_json(self) -> bytes:
+        """This configuration as JSON (every float exact): what a worker process builds its share from."""
+        return msgspec.json.encode(self)
+
+    @classmethod
+    def from_json(cls, data: bytes | str) -> PhysicsConfig:
+        """The configuration :meth:`to_json` wrote; :class:`ScenarioError` if ``data`` is not one."""
+        try:
+            return msgspec.json.decode(data, type=cls)
+        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+            raise ScenarioError(f"physics: not a physics configuration: {exc}") from None
+
 
 @dataclass
 class VehicleCounters:
@@ -128,6 +141,17 @@ class _Vehicle:
         self.cmd_nodes = [node(f"fcs/motor-cmd[{i}]") for i in range(MOTOR_COUNT)]
         self.read_nodes = [node(name) for name in _READ]
         self.wind_nodes = [node(f"atmosphere/wind-{a}-fps") for a in ("north", "east", "down")]
+        # per-step shortcuts: bound property accessors (the fastest read in jsbsim 1.3: ~0.12 µs a property,
+        # against ~0.17 for fdm[name] and ~0.9 for get_property_value) and the world origin's constants
+        self.cmd_setters = [n.set_double_value for n in self.cmd_nodes]
+        self.wind_setters = [n.set_double_value for n in self.wind_nodes]
+        self.reads = [n.get_double_value for n in self.read_nodes]
+        o = cfg.origin
+        self.lat0_deg, self.lon0_deg, self.alt0_m = o.lat_deg, o.lon_deg, o.alt_amsl_m
+        self.r_meridian_m, self.r_normal_m = o.radii_m()
+        self.cos_lat0 = math.cos(math.radians(o.lat_deg))
+        self.mass_kg = q.mass_kg
+        self.cos_tip_over = math.cos(math.radians(cfg.tip_over_deg))
         self.sensors = SensorModel(cfg.sensors, rng, round(1e9 / cfg.tick_hz), cfg.origin.magnetic_field_ned_gauss())
         self.turbulence = Turbulence(cfg.wind, rng)
         self.counters = VehicleCounters()
@@ -139,14 +163,28 @@ class _Vehicle:
 
 
 class Physics:
-    """N vehicles in lockstep. Not thread-safe: one caller steps it."""
+    """N vehicles in lockstep. Not thread-safe: one caller steps it.
 
-    def __init__(self, cfg: PhysicsConfig) -> None:
+    ``vehicles``: the indices (of ``cfg.n_vehicles``) this instance simulates, default all of them. Each
+    vehicle is the same wherever it is simulated (its spawn point and its random stream, the ``i``-th child
+    of the run's seed), so a run whose worker processes each step a share has the same ground truth as one
+    process stepping all. ``step`` takes one command per simulated vehicle, in ``vehicles`` order; with no
+    vehicles it only advances the clock.
+    """
+
+    def __init__(self, cfg: PhysicsConfig, vehicles: Sequence[int] | None = None) -> None:
         self.cfg = cfg
         self.substeps = round(cfg.substep_hz / cfg.tick_hz)
         self.tick_ns = round(1e9 / cfg.tick_hz)
+        own = list(range(cfg.n_vehicles)) if vehicles is None else list(vehicles)
+        bad = [i for i in own if not 0 <= i < cfg.n_vehicles]
+        if bad or len(set(own)) != len(own):
+            raise ScenarioError(f"physics: vehicles {own} are not distinct indices below {cfg.n_vehicles}")
         seeds = np.random.SeedSequence(cfg.seed).spawn(cfg.n_vehicles)
-        self.vehicles = [_Vehicle(i, cfg, np.random.default_rng(s)) for i, s in enumerate(seeds)]
+        self.vehicles = [_Vehicle(i, cfg, np.random.default_rng(seeds[i])) for i in own]
+        self.owned: tuple[int, ...] = tuple(own)
+        """The vehicles simulated here, in ``step`` order."""
+        self._by_index = {v.index: v for v in self.vehicles}
         self._t_ns = 0
         self._tick = 0
         self._frames = [self._frame(v) for v in self.vehicles]
@@ -163,10 +201,10 @@ class Physics:
         return list(self._frames)
 
     def counters(self, vehicle: int) -> VehicleCounters:
-        return self.vehicles[vehicle].counters
+        return self._by_index[vehicle].counters
 
     def crashed(self, vehicle: int) -> bool:
-        return self.vehicles[vehicle].crashed
+        return self._by_index[vehicle].crashed
 
     def set_wind(self, wind: WindConfig) -> None:
         """Change the wind of every vehicle (tests, scenario events)."""
@@ -179,17 +217,22 @@ class Physics:
                 f"physics: got motor commands for {len(motors)} vehicles, simulating {len(self.vehicles)}"
             )
         dt_tick = self.tick_ns * 1e-9
+        substeps = range(self.substeps)
         for v, cmd in zip(self.vehicles, motors, strict=True):
             u = self._validate(v, cmd)
             v.motors = u
-            for node, value in zip(v.cmd_nodes, u, strict=True):
-                node.set_double_value(value)
+            s0, s1, s2, s3 = v.cmd_setters
+            s0(u[0])
+            s1(u[1])
+            s2(u[2])
+            s3(u[3])
             wn, we, wd = v.turbulence.step(dt_tick)
-            v.wind_nodes[0].set_double_value(wn * FT_PER_M)
-            v.wind_nodes[1].set_double_value(we * FT_PER_M)
-            v.wind_nodes[2].set_double_value(wd * FT_PER_M)
+            w0, w1, w2 = v.wind_setters
+            w0(wn * FT_PER_M)
+            w1(we * FT_PER_M)
+            w2(wd * FT_PER_M)
             run = v.fdm.run
-            for _ in range(self.substeps):
+            for _ in substeps:
                 run()
         self._t_ns += self.tick_ns
         self._tick += 1
@@ -203,9 +246,11 @@ class Physics:
             )
         if v.crashed:
             return (0.0, 0.0, 0.0, 0.0)
+        c0, c1, c2, c3 = float(cmd[0]), float(cmd[1]), float(cmd[2]), float(cmd[3])
+        if 0.0 <= c0 <= 1.0 and 0.0 <= c1 <= 1.0 and 0.0 <= c2 <= 1.0 and 0.0 <= c3 <= 1.0:
+            return (c0, c1, c2, c3)  # the usual case (NaN fails every comparison)
         out = []
-        for x in cmd:
-            x = float(x)
+        for x in (c0, c1, c2, c3):
             if x != x:  # NaN
                 v.counters.nan_commands += 1
                 v.counters.clamped_commands += 1
@@ -217,33 +262,37 @@ class Physics:
         return (out[0], out[1], out[2], out[3])
 
     def _frame(self, v: _Vehicle) -> SensorFrame:
-        (lat, lon, h_ft, vn, ve, vd, phi, theta, psi, p, q, r, fx, fy, fz, fgear) = [
-            n.get_double_value() for n in v.read_nodes
-        ]
-        cfg = self.cfg
+        (lat, lon, h_ft, vn, ve, vd, phi, theta, psi, p, q, r, fx, fy, fz, fgear) = [read() for read in v.reads]
         alt = h_ft * M_PER_FT
-        pos = cfg.origin.geodetic_to_ned(lat, lon, alt)
+        # the world origin's geodetic_to_ned, with its constants taken once
+        pos = (
+            math.radians(lat - v.lat0_deg) * v.r_meridian_m,
+            math.radians(lon - v.lon0_deg) * v.r_normal_m * v.cos_lat0,
+            v.alt0_m - alt,
+        )
         vel = (vn * M_PER_FT, ve * M_PER_FT, vd * M_PER_FT)
         quat = quat_from_euler(phi, theta, psi)
-        m = cfg.quad.mass_kg
+        m = v.mass_kg
         sf = (fx * N_PER_LBF / m, fy * N_PER_LBF / m, fz * N_PER_LBF / m)
         on_ground = abs(fgear) > 1e-3
         if on_ground:
             if v.airborne and not v.crashed:
                 v.impact_speed_m_s = v.last_v_down
-                if v.last_v_down > cfg.crash_speed_m_s:
+                if v.last_v_down > self.cfg.crash_speed_m_s:
                     v.crashed = True
             upright = 1.0 - 2.0 * (quat[1] ** 2 + quat[2] ** 2)  # cosine of the tilt
-            if upright < math.cos(math.radians(cfg.tip_over_deg)):
+            if upright < v.cos_tip_over:
                 v.crashed = True  # lying on its side or back
             v.airborne = False
         elif pos[2] < -(0.05):
             v.airborne = True
         v.last_v_down = vel[2]
         acc = _accel_ned(quat, sf)
-        truth = Truth(pos, vel, quat, (p, q, r), acc, lat, lon, alt, on_ground, v.crashed)
-        imu, mag, baro, gps = v.sensors.sample(self._t_ns, quat, sf, (p, q, r), lat, lon, alt, vel)
-        return SensorFrame(self._t_ns, v.index, imu, truth, mag, baro, gps)
+        rates = (p, q, r)
+        t_ns = self._t_ns
+        truth = Truth(pos, vel, quat, rates, acc, lat, lon, alt, on_ground, v.crashed)
+        imu, mag, baro, gps = v.sensors.sample(t_ns, quat, sf, rates, lat, lon, alt, vel)
+        return SensorFrame(t_ns, v.index, imu, truth, mag, baro, gps)
 
 
 def _accel_ned(q: tuple[float, float, float, float], sf: Vec3) -> Vec3:

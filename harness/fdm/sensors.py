@@ -118,15 +118,6 @@ def rotate_ned_to_body(q: Quat, v: Vec3) -> Vec3:
     return (r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz)
 
 
-@dataclass
-class _GpsSample:
-    t_ns: int
-    lat_deg: float
-    lon_deg: float
-    alt_amsl_m: float
-    vel_ned_m_s: Vec3
-
-
 class SensorModel:
     """The sensors of one vehicle. Call :meth:`sample` once per tick with the truth of that tick."""
 
@@ -143,7 +134,8 @@ class SensorModel:
         self.gyro_bias = [on * b for b in cfg.gyro_bias_rad_s]
         self.baro_bias_m = on * cfg.baro_bias_m
         self._gps_err = [0.0, 0.0, 0.0]
-        self._history: collections.deque[_GpsSample] = collections.deque()
+        self._history: collections.deque[tuple[int, float, float, float, Vec3]] = collections.deque()
+        """(t_ns, lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s) of the last ticks, as long as the GPS latency."""
         self._next_mag = 0
         self._next_baro = 0
         self._next_gps = round(cfg.gps_latency_s * 1e9)
@@ -158,6 +150,14 @@ class SensorModel:
         gps_dt = self._gps_period * 1e-9
         self._gps_a = math.exp(-gps_dt / cfg.gps_error_tau_s)
         self._gps_b = math.sqrt(1.0 - self._gps_a**2) * on
+        # per-tick constants (the same products the formulas below would form every tick)
+        self._an, self._gn = cfg.accel_noise_m_s2 * on, cfg.gyro_noise_rad_s * on
+        self._mn = cfg.mag_noise_gauss * on
+        self._mb = (on * cfg.mag_bias_gauss[0], on * cfg.mag_bias_gauss[1], on * cfg.mag_bias_gauss[2])
+        self._bn = cfg.baro_noise_m * on
+        self._vn = cfg.gps_vel_noise_m_s * on
+        self._eph = max(0.5, cfg.gps_noise_m * 2.0)
+        self._epv = max(0.8, cfg.gps_alt_noise_m * 2.0)
 
     def _normals(self, n: int) -> list[float]:
         """The next ``n`` standard normal draws of this vehicle's stream. Drawn from the generator in blocks
@@ -180,56 +180,69 @@ class SensorModel:
         alt_amsl_m: float,
         vel_ned_m_s: Vec3,
     ) -> tuple[Imu, Mag | None, Baro | None, Gps | None]:
-        cfg, on = self.cfg, self._on
-        z = self._normals(12)  # a fixed number of draws per tick keeps the streams aligned
+        # the draws of a tick, in this order: 12 (IMU), 1 (baro drift), then 3 (mag), 1 (baro), 6 (GPS) when
+        # those sample; a fixed number per sensor keeps the streams aligned
+        noise, at = self._noise, self._noise_at
+        if at + 13 > len(noise):
+            z = self._normals(12)
+            zb = self._normals(1)[0]
+        else:
+            z = noise[at : at + 12]
+            zb = noise[at + 12]
+            self._noise_at = at + 13
         ab, gb = self.accel_bias, self.gyro_bias
-        for i in range(3):
-            ab[i] += self._walk_accel * (z[i])
-            gb[i] += self._walk_gyro * (z[3 + i])
-        an, gn = cfg.accel_noise_m_s2 * on, cfg.gyro_noise_rad_s * on
-        sf, w = specific_force_body_m_s2, rates_body_rad_s
+        wa, wg = self._walk_accel, self._walk_gyro
+        z0, z1, z2, z3, z4, z5, z6, z7, z8, z9, z10, z11 = z
+        ab0 = ab[0] = ab[0] + wa * z0
+        gb0 = gb[0] = gb[0] + wg * z3
+        ab1 = ab[1] = ab[1] + wa * z1
+        gb1 = gb[1] = gb[1] + wg * z4
+        ab2 = ab[2] = ab[2] + wa * z2
+        gb2 = gb[2] = gb[2] + wg * z5
+        an, gn = self._an, self._gn
+        sf0, sf1, sf2 = specific_force_body_m_s2
+        w0, w1, w2 = rates_body_rad_s
         imu = Imu(
-            (sf[0] + ab[0] + an * (z[6]), sf[1] + ab[1] + an * (z[7]), sf[2] + ab[2] + an * (z[8])),
-            (w[0] + gb[0] + gn * (z[9]), w[1] + gb[1] + gn * (z[10]), w[2] + gb[2] + gn * (z[11])),
+            (sf0 + ab0 + an * z6, sf1 + ab1 + an * z7, sf2 + ab2 + an * z8),
+            (w0 + gb0 + gn * z9, w1 + gb1 + gn * z10, w2 + gb2 + gn * z11),
         )
-        self.baro_bias_m += self._walk_baro * self._normals(1)[0]
+        self.baro_bias_m += self._walk_baro * zb
         mag = baro = gps = None
         if t_ns >= self._next_mag:
             self._next_mag += self._mag_period
             m = rotate_ned_to_body(q, self.mag_ned)
             mz = self._normals(3)
-            mn, mb = cfg.mag_noise_gauss * on, cfg.mag_bias_gauss
-            mag = Mag((m[0] + on * mb[0] + mn * mz[0], m[1] + on * mb[1] + mn * mz[1], m[2] + on * mb[2] + mn * mz[2]))
+            mn, mb = self._mn, self._mb
+            mag = Mag((m[0] + mb[0] + mn * mz[0], m[1] + mb[1] + mn * mz[1], m[2] + mb[2] + mn * mz[2]))
         if t_ns >= self._next_baro:
             self._next_baro += self._baro_period
-            measured_alt = alt_amsl_m + self.baro_bias_m + cfg.baro_noise_m * on * self._normals(1)[0]
+            measured_alt = alt_amsl_m + self.baro_bias_m + self._bn * self._normals(1)[0]
             pressure = isa_pressure_pa(measured_alt)
             baro = Baro(pressure, 15.0 - 0.0065 * alt_amsl_m, isa_altitude_m(pressure))
-        self._history.append(_GpsSample(t_ns, lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s))
-        while len(self._history) > 1 and self._history[1].t_ns <= t_ns - self._latency_ns:
-            self._history.popleft()
+        history = self._history
+        history.append((t_ns, lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s))
+        oldest = t_ns - self._latency_ns
+        while len(history) > 1 and history[1][0] <= oldest:
+            history.popleft()
         if t_ns >= self._next_gps:
             self._next_gps += self._gps_period
-            old = self._history[0]
+            old_t, old_lat, old_lon, old_alt, old_vel = history[0]
             gz = self._normals(6)
             e = self._gps_err
             for i in range(3):
                 e[i] = self._gps_a * e[i] + self._gps_b * gz[i]
+            cfg = self.cfg
             rm = EARTH_RADIUS_M
-            vn = cfg.gps_vel_noise_m_s * on
+            vn = self._vn
             gps = Gps(
-                old.lat_deg + math.degrees(e[0] * cfg.gps_noise_m / rm),
-                old.lon_deg + math.degrees(e[1] * cfg.gps_noise_m / (rm * math.cos(math.radians(old.lat_deg)))),
-                old.alt_amsl_m + e[2] * cfg.gps_alt_noise_m,
-                (
-                    old.vel_ned_m_s[0] + vn * gz[3],
-                    old.vel_ned_m_s[1] + vn * gz[4],
-                    old.vel_ned_m_s[2] + vn * gz[5],
-                ),
+                old_lat + math.degrees(e[0] * cfg.gps_noise_m / rm),
+                old_lon + math.degrees(e[1] * cfg.gps_noise_m / (rm * math.cos(math.radians(old_lat)))),
+                old_alt + e[2] * cfg.gps_alt_noise_m,
+                (old_vel[0] + vn * gz[3], old_vel[1] + vn * gz[4], old_vel[2] + vn * gz[5]),
                 cfg.gps_fix_type,
-                max(0.5, cfg.gps_noise_m * 2.0),
-                max(0.8, cfg.gps_alt_noise_m * 2.0),
+                self._eph,
+                self._epv,
                 cfg.gps_satellites,
-                old.t_ns,
+                old_t,
             )
         return imu, mag, baro, gps

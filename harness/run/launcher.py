@@ -2,8 +2,9 @@
 
 Processes of a run::
 
-    harness run (this process)     physics (JSBSim, N vehicles) + root channel + recorder + progress
-      ├─ autopilot host            all vehicles' autopilots and MAVLink servers (python -m harness.autopilot.host)
+    harness run (this process)     root channel + recorder + progress; physics and autopilots of the first share
+      ├─ autopilot host (each)     physics, autopilots and MAVLink servers of one more share (--workers,
+      │                            python -m harness.autopilot.sitl --physics RUN/physics.json)
       ├─ network (optional)        the type-1 network subscriber
       └─ mission i (per vehicle)   harness mission SCRIPT on the sim clock (type 0)
 
@@ -31,12 +32,16 @@ from harness.record.sink import WorldSink, open_world
 from harness.record.status import Checkpoint
 from harness.run import swarm, tree
 from harness.run.children import Children
+from harness.run.ledger import Ledger, Row
 from harness.run.link import NativeLink
 from harness.run.ports import allocate
 from harness.run.result import RunResult, RunStatus, VehicleSummary, write_summary
 from harness.scenario.limits import check_plan
 from harness.scenario.plan import AutopilotPlacement, LaunchPlan, MissionPlan, NetworkKind
 from harness.wire import protocol as p
+
+PHYSICS_FILE = "physics.json"
+"""The run's physics configuration in its directory, from which each autopilot host builds its share."""
 
 log = logging.getLogger(__name__)
 
@@ -73,18 +78,21 @@ class Launcher:
 
         plan = self.plan
         n = plan.vehicles + plan.remote_vehicles
-        phys = Physics(
-            PhysicsConfig(
-                n_vehicles=n,
-                seed=plan.seed,
-                substep_hz=plan.physics_hz,
-                tick_hz=plan.tick_hz,
-                origin=WorldOrigin(*plan.origin),
-                wind=WindConfig(steady_ned_m_s=plan.wind_ned_m_s, turbulence=plan.turbulence),
-                spawn_ned_m=plan.spawn_ned_m,
-                sensors=SensorConfig.for_gps(plan.gps, noise=plan.sensor_noise),
-            )
+        physics_cfg = PhysicsConfig(
+            n_vehicles=n,
+            seed=plan.seed,
+            substep_hz=plan.physics_hz,
+            tick_hz=plan.tick_hz,
+            origin=WorldOrigin(*plan.origin),
+            wind=WindConfig(steady_ned_m_s=plan.wind_ned_m_s, turbulence=plan.turbulence),
+            spawn_ned_m=plan.spawn_ned_m,
+            sensors=SensorConfig.for_gps(plan.gps, noise=plan.sensor_noise),
         )
+        # each autopilot host steps its vehicles' physics too (configured by this file); this process the rest
+        in_hosts = {v for group in self._autopilot_groups() for v in group}
+        if in_hosts:
+            (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
+        phys = Physics(physics_cfg, [v for v in range(n) if v not in in_hosts])
         channel = Channel(
             ChannelConfig(
                 tick_hz=plan.tick_hz,
@@ -145,7 +153,7 @@ class Launcher:
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
                 self._start_children(sup, channel.address, lambda: channel.pump(0.001))
-                hosts = len(self._autopilot_groups())
+                hosts = 2 * len(self._autopilot_groups())  # each also has its clock (a type-1 connection)
                 expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
                 start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
                 if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=start_s):
@@ -267,8 +275,9 @@ class Launcher:
         overrides = {str(i): p for i, p in enumerate(plan.params) if p}
         for k, group in enumerate(self._autopilot_groups()):
             vehicles = ",".join(str(i) for i in group)
+            name = f"autopilot-{k}" if k else "autopilot"
             sup.start(
-                f"autopilot-{k}" if k else "autopilot",
+                name,
                 [
                     _python(),
                     "-m",
@@ -295,6 +304,10 @@ class Launcher:
                     str(plan.tcp_port_step),
                     "--gcs-extra-ports",
                     ",".join(str(p) for p in plan.gcs_extra_ports),
+                    "--physics",
+                    str(plan.out / PHYSICS_FILE),
+                    "--name",
+                    name,
                     *(["--tcp-sim-clients"] if self._tcp_sim_clients else []),
                     *(  # the key's file, never the key: argv is public (ps)
                         ["--signing-key-file", str(plan.signing_key_file.resolve()), "--trust-run", str(os.getpid())]
@@ -363,6 +376,10 @@ class Launcher:
         wall0 = self.clock.now_ns()
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
+        own = phys.owned
+        elsewhere = {v: phys.cfg.spawn(v) for v in range(n) if v not in set(own)}
+        """Vehicles whose physics runs in an autopilot host (asked at phase ticks), with their last position."""
+        ledger = Ledger(n)
         while True:
             t_ns = phys.t_ns
             tick = phys.tick
@@ -388,41 +405,27 @@ class Launcher:
                 lag = wall0 + int(t_ns / plan.speed) - self.clock.now_ns()
                 self.clock.sleep_ns(lag)
             tick_start = self.clock.now_ns()
-            etas = link.exchange(t_ns, tick, frames)
-            for e in etas:
-                motors[e.vehicle] = e.motors
-                summaries[e.vehicle].armed = p.unpack_status(e.status)[0]
-            if tick % record_every == 0:
-                now = self.clock.now_ns()
-                for f in frames:
-                    tr = f.truth
-                    world.vehicle(
-                        VehicleSample(
-                            t_ns,
-                            f.vehicle,
-                            tr.pos_ned_m,
-                            tr.quat,
-                            tr.vel_ned_m_s,
-                            tr.lat_deg,
-                            tr.lon_deg,
-                            tr.alt_amsl_m,
-                            motors[f.vehicle],
-                            tr.on_ground,
-                            tr.crashed,
-                        )
-                    )
-                world.tick(t_ns, tick, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3)
-            frames = phys.step(motors)
+            phase = tick % plan.phase_every == 0
+            etas = link.exchange(t_ns, tick, frames, elsewhere if phase else None)
+            now = self.clock.now_ns()
+            truth: list[Any] = [None] * n  # the hosts' vehicles: once they report
             for f in frames:
-                s = summaries[f.vehicle]
-                alt = -f.truth.pos_ned_m[2]
-                if alt > s.max_altitude_m:
-                    s.max_altitude_m = alt
-                s.final_position_ned_m = f.truth.pos_ned_m
-                s.landed = f.truth.on_ground
-                if f.truth.crashed and not s.crashed:
-                    s.crashed = True
-                    world.event(t_ns, WorldEvent.CRASH, {"vehicle": f.vehicle})
+                truth[f.vehicle] = f.truth
+            row = Row(tick, t_ns, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3, truth, [()] * n, [0] * n)
+            ledger.open(row)
+            for e in etas:
+                if e.ticks:
+                    reports = p.unpack_ticks(e.ticks)
+                    ledger.reported(e.vehicle, tick, reports)
+                    elsewhere[e.vehicle] = reports[-1].truth.pos_ned_m
+                else:
+                    motors[e.vehicle] = row.motors[e.vehicle] = e.motors
+                    row.status[e.vehicle] = e.status
+            for done in ledger.complete():
+                self._record(done, record_every, summaries, world)
+            if phase:
+                ledger.check_through(tick)
+            frames = phys.step([motors[v] for v in own])
             if tick % 50 == 0:  # every 0.2 s of sim time: a child's death is noticed, waitpid stays cheap
                 for name, code in sup.poll_exits():
                     if name.startswith("autopilot") or name == "network":
@@ -432,6 +435,39 @@ class Launcher:
             if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
                 last_progress = self.clock.now_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
+
+    @staticmethod
+    def _record(row: Row, record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:
+        """A tick every vehicle's truth is known at: recorded (every ``record_every``-th), and the summaries."""
+        t_ns = row.t_ns
+        if row.tick % record_every == 0:
+            for v, tr in enumerate(row.truth):
+                world.vehicle(
+                    VehicleSample(
+                        t_ns,
+                        v,
+                        tr.pos_ned_m,
+                        tr.quat,
+                        tr.vel_ned_m_s,
+                        tr.lat_deg,
+                        tr.lon_deg,
+                        tr.alt_amsl_m,
+                        row.motors[v],
+                        tr.on_ground,
+                        tr.crashed,
+                    )
+                )
+            world.tick(t_ns, row.tick, row.wall_s, row.tick_us)
+        for s, tr, status in zip(summaries, row.truth, row.status, strict=True):
+            s.armed = p.unpack_status(status)[0]
+            alt = -tr.pos_ned_m[2]
+            if alt > s.max_altitude_m:
+                s.max_altitude_m = alt
+            s.final_position_ned_m = tr.pos_ned_m
+            s.landed = tr.on_ground
+            if tr.crashed and not s.crashed:
+                s.crashed = True
+                world.event(t_ns, WorldEvent.CRASH, {"vehicle": s.id})
 
     @staticmethod
     def _progress_line(

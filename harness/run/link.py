@@ -12,6 +12,7 @@ from typing import Protocol
 
 from harness.autopilot.api import TickStatus
 from harness.channel import Channel
+from harness.core.geo import Vec3
 from harness.fdm.frame import SensorFrame, encode_frame
 from harness.wire import protocol as p
 
@@ -41,8 +42,15 @@ class NativeLink:
         stack = self._local[m.vehicle]
         return p.EndTickAC(m.t_ns, m.vehicle, stack.step(self._frames[m.vehicle]), p.pack_status(*stack.tick_status()))
 
-    def exchange(self, t_ns: int, tick: int, frames: Sequence[SensorFrame]) -> list[p.EndTickAC]:
-        n = len(frames)
+    def exchange(
+        self, t_ns: int, tick: int, frames: Sequence[SensorFrame], elsewhere: Mapping[int, Vec3] | None = None
+    ) -> list[p.EndTickAC]:
+        """One tick: the BEGIN-TICK-AC of the vehicles simulated here (``frames``) and of those whose
+        physics runs with their autopilot in a worker (``elsewhere``, at the ticks with phases: vehicle ->
+        its last known position; no frame, and the worker's END-TICK-AC brings its ticks since the last);
+        the answers by vehicle. A tick with neither is no tick for the channel."""
+        remote = elsewhere or {}
+        n = len(frames) + len(remote)
         local = self._local
         msgs = []
         for f in frames:
@@ -51,7 +59,9 @@ class NativeLink:
                 msgs.append(p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, b""))
             else:
                 msgs.append(p.BeginTickAC(t_ns, tick, f.vehicle, n, f.truth.pos_ned_m, encode_frame(f)))
-        return self.channel.step(msgs)
+        for v, pos in remote.items():
+            msgs.append(p.BeginTickAC(t_ns, tick, v, n, pos, b""))
+        return self.channel.step(msgs) if msgs else []
 
     def close(self) -> None:
         self.channel.close("end of run")

@@ -52,8 +52,8 @@ class LaunchPlan:
     secret: bytes | None = None
     join_timeout_s: float = 600.0
     workers: int = 1
-    """Processes that fly the vehicles' autopilots: this one and ``workers - 1`` autopilot hosts, each with
-    an equal share of the vehicles (:func:`harness.run.tree.worker_groups`)."""
+    """Processes that simulate the vehicles (physics and autopilots): this one and ``workers - 1`` autopilot
+    hosts, each with an equal share of the vehicles (:func:`harness.run.tree.worker_groups`)."""
     seed: int = 0
     physics_hz: float = 1000.0
     tick_hz: float = 250.0

@@ -112,6 +112,14 @@ def _patch_grpc(ep: VehicleEndpoints | None) -> None:
     _hold_phase_during_requests()
 
 
+STREAM_SETUP_HOLD_NS = 20_000_000
+"""A new telemetry stream (a server-streaming gRPC call) keeps phase 0 open this long (wall clock), so that
+mavsdk_server has registered the subscription before the sim moves on. It gives no signal when it has;
+without the hold, a loaded machine let it register after the next message of a slow stream, and the script
+waited for the one after (HOME_POSITION at 0.5 Hz: ``mission_rtl.py`` lifted off 2.00 s later in one run of
+three)."""
+
+
 def _hold_phase_during_requests() -> None:
     """A MAVSDK request (arm, takeoff, set a setpoint, upload a mission: every unary gRPC call to
     mavsdk_server) keeps the script's phase 0 open until its answer is back, so it takes no sim time.
@@ -120,7 +128,8 @@ def _hold_phase_during_requests() -> None:
     side answers within milliseconds of wall time, whatever the sim does). Without the hold, the sim would
     run on while the request travels — at x50 a 20 ms round trip is a whole second of sim time, so an
     offboard stop or a mode change would take effect at a place that depends on the machine's speed.
-    Streams (telemetry subscriptions) do not hold: they wait for the sim.
+    Streams (telemetry subscriptions) wait for the sim; only their start holds the phase, for
+    ``STREAM_SETUP_HOLD_NS`` of wall time.
     """
     from grpc.aio import _channel
 
@@ -141,6 +150,18 @@ def _hold_phase_during_requests() -> None:
 
     callable_cls.__call__ = __call__
     callable_cls._harness_holds = True
+
+    stream_cls: Any = _channel.UnaryStreamMultiCallable
+    orig_stream = stream_cls.__call__
+
+    def subscribe(self: Any, *a: Any, **kw: Any) -> Any:
+        call = orig_stream(self, *a, **kw)
+        rt = current()
+        if rt is not None and rt._tracked():
+            rt.hold_for(STREAM_SETUP_HOLD_NS)
+        return call
+
+    stream_cls.__call__ = subscribe
 
 
 def _patch_native(ep: VehicleEndpoints | None) -> None:

@@ -125,6 +125,7 @@ class SimRuntime:
         clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
         self._wake_requested = False
         self._holds = 0
+        self._held_until_wall_ns = 0
         self.mavlink_fds: set[int] = set()
         """Descriptors of the script's sockets to its vehicle (``simsocket``)."""
         self.mavlink_sent = 0
@@ -246,6 +247,9 @@ class SimRuntime:
         """Where every thread that keeps phase 0 from ending is (diagnostics)."""
         with self._mu:
             held = [f"{self._holds} request(s) to mavsdk_server in flight"] if self._holds else []
+            left_ns = self._held_until_wall_ns - self.wall.now_ns()
+            if left_ns > 0:
+                held.append(f"held {left_ns / 1e6:.1f} ms more for mavsdk_server to register a stream")
             return held + [f"{t.name} at {where}" for t, where in self._busy_locked()]
 
     def take_outbox(self) -> list[_Outgoing]:
@@ -504,7 +508,15 @@ class SimRuntime:
             self._holds = max(0, self._holds - 1)
         self._poke()
 
+    def hold_for(self, wall_ns: int) -> None:
+        """Keep the current phase 0 open for ``wall_ns`` of wall time (a local service registers something the
+        script asked for and gives no signal when it is done; see ``mavsdk_compat``)."""
+        with self._mu:
+            self._held_until_wall_ns = max(self._held_until_wall_ns, self.wall.now_ns() + wall_ns)
+
     def _all_idle_locked(self) -> bool:
+        if self._held_until_wall_ns and self.wall.now_ns() < self._held_until_wall_ns:
+            return False
         return not self._holds and not self._busy_locked(first_only=True)
 
     def _busy_locked(self, first_only: bool = False) -> list[tuple[threading.Thread, str]]:

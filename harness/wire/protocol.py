@@ -44,14 +44,14 @@ import enum
 import hashlib
 import hmac
 import struct
-from typing import Annotated, Final
+from typing import Annotated, Final, NamedTuple, Protocol
 
 import msgspec
 
 from harness.core.geo import Vec3
 
-PROTOCOL_VERSION: Final = 2
-"""Bumped on every incompatible change of a message below."""
+PROTOCOL_VERSION: Final = 3
+"""Bumped on every incompatible change of a message below (3: END-TICK-AC carries ``ticks``)."""
 
 MAX_FRAME_BYTES: Final = 16 * 1024 * 1024
 """Frames larger than this are refused as malformed (a garbage length prefix must not allocate GBs)."""
@@ -176,12 +176,95 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
 
     ``motors`` are normalised commands in [0, 1] in PX4 quad-X motor order; physics validates them.
     ``status`` is the autopilot's state for recording, packed by :func:`pack_status`.
+    ``ticks``: empty, or — from a host that steps the vehicle's physics itself (``harness run --workers``) —
+    what happened to the vehicle at each tick since its previous END-TICK-AC, oldest first, the last at
+    ``t_ns``: ground truth, motors and status, :func:`pack_tick` records back to back. The channel hands the
+    last one's position to type-1 subscribers instead of the BEGIN-TICK-AC's.
     """
 
     t_ns: int
     vehicle: int
     motors: tuple[float, ...]
     status: int = 0
+    ticks: bytes = b""
+
+    def __post_init__(self) -> None:  # also on decoding: a malformed record is a malformed frame
+        if len(self.ticks) % TICK_BYTES:
+            raise ValueError(f"END-TICK-AC ticks of {len(self.ticks)} bytes, not a multiple of {TICK_BYTES}")
+
+
+_TICK = struct.Struct("<13dB4dI")
+TICK_BYTES: Final = _TICK.size
+_POS = struct.Struct("<3d")
+
+
+class TruthReport(NamedTuple):
+    """A vehicle's ground truth as END-TICK-AC carries it (field names as ``harness.fdm.frame.Truth``)."""
+
+    pos_ned_m: Vec3
+    vel_ned_m_s: Vec3
+    quat: tuple[float, float, float, float]
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    on_ground: bool
+    crashed: bool
+
+
+class TruthLike(Protocol):
+    """What :func:`pack_tick` reads: a :class:`TruthReport` or ``harness.fdm.frame.Truth``."""
+
+    @property
+    def pos_ned_m(self) -> Vec3: ...
+    @property
+    def vel_ned_m_s(self) -> Vec3: ...
+    @property
+    def quat(self) -> tuple[float, float, float, float]: ...
+    @property
+    def lat_deg(self) -> float: ...
+    @property
+    def lon_deg(self) -> float: ...
+    @property
+    def alt_amsl_m(self) -> float: ...
+    @property
+    def on_ground(self) -> bool: ...
+    @property
+    def crashed(self) -> bool: ...
+
+
+class TickReport(NamedTuple):
+    """One tick of a vehicle simulated by an autopilot host: its truth, then its autopilot's answer."""
+
+    truth: TruthReport
+    motors: tuple[float, float, float, float]
+    status: int
+
+
+def pack_tick(truth: TruthLike, motors: tuple[float, ...], status: int) -> bytes:
+    """One record of END-TICK-AC ``ticks``: 13 little-endian doubles of truth (every bit kept), a flags
+    byte, 4 doubles of motors and the status, 141 bytes."""
+    flags = (1 if truth.on_ground else 0) | (2 if truth.crashed else 0)
+    return _TICK.pack(
+        *truth.pos_ned_m, *truth.vel_ned_m_s, *truth.quat, truth.lat_deg, truth.lon_deg, truth.alt_amsl_m, flags,
+        *motors, status
+    )  # fmt: skip
+
+
+def unpack_ticks(data: bytes) -> list[TickReport]:
+    """The records :func:`pack_tick` packed, oldest first."""
+    out = []
+    for pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, lat, lon, alt, flags, m0, m1, m2, m3, status in _TICK.iter_unpack(data):
+        truth = TruthReport(
+            (pn, pe, pd), (vn, ve, vd), (qw, qx, qy, qz), lat, lon, alt, bool(flags & 1), bool(flags & 2)
+        )
+        out.append(TickReport(truth, (m0, m1, m2, m3), status))
+    return out
+
+
+def last_position(ticks: bytes) -> Vec3:
+    """The NED position in the last record of END-TICK-AC ``ticks`` (what the channel needs for BEGIN-TICK-1)."""
+    x, y, z = _POS.unpack_from(ticks, len(ticks) - TICK_BYTES)
+    return (x, y, z)
 
 
 def pack_status(armed: bool, landed_state: int, main_mode: int, sub_mode: int) -> int:

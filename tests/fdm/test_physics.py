@@ -7,7 +7,7 @@ import math
 import jsbsim
 import pytest
 
-from harness.core.errors import SimulationError
+from harness.core.errors import ScenarioError, SimulationError
 from harness.fdm.environment import WindConfig
 from harness.fdm.params import DEFAULT_QUAD, G_M_S2, KG_PER_SLUG, models_root
 from harness.fdm.physics import Physics, PhysicsConfig
@@ -129,6 +129,34 @@ def test_same_seed_gives_bit_identical_streams() -> None:
     a, b, c = run(7), run(7), run(8)
     assert a == b
     assert a != c
+
+
+def test_a_share_of_the_vehicles_is_bit_identical_to_the_same_vehicles_of_the_whole() -> None:
+    """A worker builds ``Physics(config, its vehicles)`` from the run's configuration (sent as JSON): each of
+    its vehicles must be the very vehicle the whole run would have (spawn point, sensor and turbulence
+    streams from its own share of the seed), whichever others are simulated beside it."""
+    cfg = PhysicsConfig(
+        n_vehicles=4,
+        seed=11,
+        wind=WindConfig((2.0, -1.0, 0.0), turbulence="moderate"),
+        spawn_ned_m=((0.0, 0.0, 0.0), (3.0, 1.0, 0.0), (-2.0, 4.0, -1.0), (7.0, 7.0, 0.0)),
+        sensors=SensorConfig.for_gps("standalone"),
+    )
+    sent = PhysicsConfig.from_json(cfg.to_json())
+    assert sent == cfg
+    whole, share = Physics(cfg), Physics(sent, [3, 1])
+    assert share.owned == (3, 1) and [f.vehicle for f in share.frames()] == [3, 1]
+    u = DEFAULT_QUAD.hover_command * 1.05
+    cmds = {1: (u, u, u, u), 3: (u * 0.99, u, u * 1.01, u)}
+    for _ in range(300):
+        frames = {f.vehicle: f for f in whole.step([cmds.get(i, (0.0,) * 4) for i in range(4)])}
+        mine = share.step([cmds[3], cmds[1]])
+        assert mine == [frames[3], frames[1]]
+    assert -mine[1].truth.pos_ned_m[2] > 0.1  # it flew, in the gusts
+    with pytest.raises(ScenarioError, match="not distinct indices below 4"):
+        Physics(cfg, [1, 4])
+    with pytest.raises(ScenarioError, match="not a physics configuration"):
+        PhysicsConfig.from_json(b'{"n_vehicles": "two"}')
 
 
 def test_bad_commands_are_clamped_and_counted() -> None:

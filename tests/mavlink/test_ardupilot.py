@@ -62,12 +62,28 @@ def test_ardupilot_parameters_follow_the_core_both_ways_in_ardupilot_units() -> 
     assert ap["RTL_ALT"] == 1500.0 and ap["SYSID_THISMAV"] == 3 and ap["WPNAV_SPEED"] == 500.0
     assert ap.set("RTL_ALT", 2500).ok and core["RTL_RETURN_ALT"] == 25.0
     assert core.set("MPC_XY_CRUISE", 7.5).ok and ap["WPNAV_SPEED"] == 750.0
-    refused = ap.set("WPNAV_SPEED", 100)  # 1 m/s: below the core's MPC_XY_CRUISE floor
-    assert not refused.ok and "MPC_XY_CRUISE" in refused.reason and ap["WPNAV_SPEED"] == 750.0
+    refused = ap.set("WPNAV_SPEED", 5)  # below ArduCopter's 10..2000 cm/s
+    assert not refused.ok and "WPNAV_SPEED" in refused.reason and ap["WPNAV_SPEED"] == 750.0
+    assert core["MPC_XY_CRUISE"] == 7.5
     assert not ap.set("SYSID_THISMAV", 9).ok
     assert ap.set("FENCE_RADIUS", 200).ok and core["GF_MAX_HOR_DIST"] == 0.0  # fence still disabled
     assert ap.set("FENCE_ENABLE", 1).ok and core["GF_MAX_HOR_DIST"] == 200.0 and core["GF_MAX_VER_DIST"] == 100.0
     assert ap.set("FENCE_ENABLE", 0).ok and core["GF_MAX_HOR_DIST"] == 0.0
+
+
+def test_ardupilot_ranges_beyond_the_core_are_kept_as_set_and_flown_clamped() -> None:
+    """ArduCopter takes THR_MIN 0..300 (0.1 %; DroneKit's vehicle_state.py writes 10) and WPNAV_SPEED from
+    10 cm/s: the value reads back as set, the core flies the nearest value it takes."""
+    core = Params(overrides=core_param_defaults(Firmware.ARDUPILOT))
+    ap = CopterParams(core, sysid=1)
+    assert ap["THR_MIN"] == 80.0
+    assert ap.set("THR_MIN", 10).ok and ap["THR_MIN"] == 10.0 and core["MPC_THR_MIN"] == 0.05
+    assert ap.set("THR_MIN", 120).ok and ap["THR_MIN"] == 120.0 and core["MPC_THR_MIN"] == 0.12
+    refused = ap.set("THR_MIN", 600)  # above both ranges (the core takes up to 500)
+    assert not refused.ok and "THR_MIN" in refused.reason and ap["THR_MIN"] == 120.0
+    assert ap.set("WPNAV_SPEED", 100).ok and ap["WPNAV_SPEED"] == 100.0 and core["MPC_XY_CRUISE"] == 3.0
+    assert ap.set("LAND_SPEED", 50).ok and ap["LAND_SPEED"] == 50.0 and core["MPC_LAND_SPEED"] == 0.6
+    assert core.set("MPC_THR_MIN", 0.2).ok and ap["THR_MIN"] == 200.0  # a core change still shows
 
 
 def test_ekf_flags_say_when_dronekit_may_arm() -> None:

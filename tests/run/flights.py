@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -12,6 +13,15 @@ from harness.pytest_plugin import RunRecord
 
 MISSIONS = Path(__file__).resolve().parents[2] / "missions"
 Fly = Callable[..., RunRecord]
+
+
+def running_sim_time(out: Path) -> float:
+    """The sim time a running ``harness run`` has reached by its checkpoint in ``out`` (0 before, or once over)."""
+    try:
+        summary = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return 0.0
+    return float(summary["sim_time_s"]) if summary.get("status") == "running" else 0.0
 
 
 def flown(harness_run: Fly, script: str, *args: str) -> RunRecord:

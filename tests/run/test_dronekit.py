@@ -256,6 +256,7 @@ def test_mixed_swarm_two_px4_two_ardupilot(tmp_path: Path) -> None:
     run = _run(tmp_path, "mixed", 'speed = "max"\nduration_s = 300\n' + "".join(entries))
     assert run.ok, run.message
     alts = [run.vehicle(i).max_altitude_m for i in range(4)]
+    print(f"FIGURE mixed swarm (px4, ardupilot, px4, ardupilot): max altitudes {[round(a, 2) for a in alts]} m")
     px4_alt = run.vehicle(0).max_altitude_m
     assert abs(alts[2] - px4_alt) < 0.5 and 5.5 < alts[1] < 6.6 and 7.5 < alts[3] < 8.6, alts
     assert all(run.vehicle(i).landed for i in range(4))

@@ -15,18 +15,11 @@ from mcap.reader import make_reader
 
 from harness.pytest_plugin import RunRecord
 from harness.record.status import read_summary
+from tests.run.flights import running_sim_time
 from tests.run.test_run import ROOT, harness, pids_with_run_dir
 
 pytestmark = pytest.mark.sim
 HOVER = ROOT / "missions" / "hover.py"
-
-
-def _running_sim_time(out: Path) -> float:
-    try:
-        summary = json.loads((out / "summary.json").read_text())
-    except (OSError, ValueError):
-        return 0.0
-    return float(summary["sim_time_s"]) if summary.get("status") == "running" else 0.0
 
 
 def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_path: Path) -> None:
@@ -35,10 +28,10 @@ def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_
     proc = harness("run", "--vehicles", "1", "--mission", str(HOVER), "--out", str(out), "--speed", "2", "--", "300")
     try:
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and _running_sim_time(out) < 15.0:
+        while time.monotonic() < deadline and running_sim_time(out) < 15.0:
             assert proc.poll() is None, proc.communicate()
             time.sleep(0.2)
-        assert _running_sim_time(out) >= 15.0, "the run never recorded 15 s of sim time"
+        assert running_sim_time(out) >= 15.0, "the run never recorded 15 s of sim time"
         assert pids_with_run_dir(out), "the mission process runs"
         proc.send_signal(signal.SIGKILL)
         proc.communicate(timeout=10)

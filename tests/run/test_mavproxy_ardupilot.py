@@ -110,6 +110,11 @@ def test_mavproxy_flies_an_ardupilot_vehicle_with_its_own_commands(tmp_path: Pat
         sitl.wait(20)
     summary = json.loads((tmp_path / "sitl" / "summary.json").read_text())
     v0, v1 = summary["vehicles"]
+    print(
+        f"FIGURE mavproxy ardupilot: vehicle 1 max altitude {v0['max_altitude_m']:.2f} m, final NED "
+        f"{[round(x, 2) for x in v0['final_position_ned_m']]}, landed {v0['landed']}, armed {v0['armed']}; "
+        f"vehicle 2 max altitude {v1['max_altitude_m']:.2f} m"
+    )
     assert 14.0 < v0["max_altitude_m"] < 16.5  # the RTL climb to RTL_ALT (15 m), above the 10 m mission
     n, e, _ = v0["final_position_ned_m"]
     assert v0["landed"] and not v0["armed"] and abs(n) < 1.5 and abs(e) < 1.5

@@ -61,6 +61,7 @@ def test_same_seed_same_flight_byte_identical_for_socket_scripts(tmp_path: Path,
     if script.startswith("dronekit"):
         pytest.importorskip("dronekit", reason="dronekit2 is in the dev extra")
     runs = _three_runs(tmp_path, script, duration_s=15)
+    print(f"FIGURE {script}: lift-off {[[_liftoff_s(r.vehicle(i)) for r in runs] for i in range(2)]} s")
     for i in range(2):
         tracks = [[(m["t_s"], m["pos_ned_m"]) for m in r.vehicle(i).track] for r in runs]
         assert [t for t, _ in tracks[0]] == [t for t, _ in tracks[1]] == [t for t, _ in tracks[2]]
@@ -69,17 +70,23 @@ def test_same_seed_same_flight_byte_identical_for_socket_scripts(tmp_path: Path,
             assert diff is None, f"vehicle {i}, run {k}: first differs at t={diff[0]} s: {diff[1]} vs {diff[2]}"
 
 
-@pytest.mark.parametrize("script", ["takeoff_and_land.py", "mission_rtl.py"])
+@pytest.mark.parametrize("script", ["takeoff_and_land.py", "takeoff_and_land_native.py", "mission_rtl.py"])
 def test_same_seed_same_flight_for_mavsdk_scripts(tmp_path: Path, script: str) -> None:
-    """MAVSDK (gRPC API): start-up takes no sim time (before: lift-off 9 to 18 s apart). Telemetry reaches the
-    script through mavsdk_server, whose own threads run on the wall clock, so a stream event can land a phase
-    later (docs/simclock.md): on a quiet machine lift-off is within one phase (20 ms); under load a few."""
+    """MAVSDK, gRPC API (``takeoff_and_land.py``, ``mission_rtl.py``) and native API
+    (``takeoff_and_land_native.py``): start-up takes no sim time (before: lift-off 9 to 18 s apart). Telemetry
+    reaches the script through MAVSDK's C++ side, whose own threads run on the wall clock, so a stream event can
+    land a phase later (docs/simclock.md): on a quiet machine lift-off is within one phase (20 ms); under load a
+    few."""
     runs = _three_runs(tmp_path, script, duration_s=30)
     for i in range(2):
         lifts = [_liftoff_s(r.vehicle(i)) for r in runs]
-        assert max(lifts) - min(lifts) <= 0.1, f"vehicle {i} lifted off at {lifts}"
         pos = [r.vehicle(i).position_at(25.0) for r in runs]
         spread = max(max(abs(a[j] - b[j]) for j in range(3)) for a in pos for b in pos)
+        same = all(r.vehicle(i).track == runs[0].vehicle(i).track for r in runs)
+        print(
+            f"FIGURE {script} vehicle {i}: lift-off {lifts} s, spread at 25 s {spread * 100:.2f} cm, identical {same}"
+        )
+        assert max(lifts) - min(lifts) <= 0.1, f"vehicle {i} lifted off at {lifts}"
         assert spread < 0.5, f"vehicle {i} at t=25 s: {pos}"  # 5 m/s for 0.1 s
 
 
@@ -98,5 +105,8 @@ def test_two_runs_started_together_never_share_a_port(tmp_path: Path) -> None:
             assert proc.returncode == 0, err[-2000:]
             summaries.append(json.loads((out / "summary.json").read_text()))
         a, b = summaries
+        print(
+            f"FIGURE trial {k}: api {a['api_port_base']} / {b['api_port_base']}, gcs {a['gcs_port']} / {b['gcs_port']}"
+        )
         assert a["api_port_base"] != b["api_port_base"] and a["gcs_port"] != b["gcs_port"], (a, b)
         assert all(v["mission_exit_code"] == 0 for s in summaries for v in s["vehicles"])

@@ -28,6 +28,14 @@ messages = st.one_of(
     st.builds(p.Welcome, i64, i64, i64),
     st.builds(p.BeginTickAC, i64, i64, veh, st.integers(1, 100), vec3, st.binary(max_size=300)),
     st.builds(p.EndTickAC, i64, veh, st.lists(flt, min_size=4, max_size=4).map(tuple)),
+    st.builds(
+        p.EndTickAC,
+        i64,
+        veh,
+        st.lists(flt, min_size=4, max_size=4).map(tuple),
+        st.integers(0, 2**24),
+        st.integers(0, 6).map(lambda k: bytes(range(p.TICK_BYTES)) * k),
+    ),
     st.builds(p.BeginTick0, i64, i64),
     st.builds(p.EndTick0, i64),
     st.builds(p.Enqueue, packet),
@@ -87,3 +95,28 @@ def test_auth_token_binds_nonce_and_name() -> None:
     assert not p.check_auth(b"k", b"m" * 16, "a", t)
     assert not p.check_auth(b"k", b"n" * 16, "b", t)
     assert not p.check_auth(b"x", b"n" * 16, "a", t)
+
+
+def test_tick_records_keep_every_bit_and_a_torn_one_is_malformed() -> None:
+    """END-TICK-AC ``ticks``: a worker's ground truth must reach the root bit for bit (the recording of a
+    run with workers is compared byte for byte); a length that is not whole records is a malformed frame."""
+    truth = p.TruthReport(
+        (0.1, -1 / 3, -2.5e-17), (1e-300, -0.0, 3.0), (0.9, 0.1, -0.2, 0.3), 47.1, 8.5, 488.0, True, True
+    )
+    records = p.pack_tick(truth, (0.0, 0.5, 1.0, 1 / 7), 0x12345) + p.pack_tick(
+        truth._replace(pos_ned_m=(4.0, 5.0, -6.0), on_ground=False), (1.0, 1.0, 1.0, 1.0), 1
+    )
+    eta = p.EndTickAC(8, 3, (1.0, 1.0, 1.0, 1.0), 1, records)
+    back = p.decode_body(p.encode(eta)[4:])
+    assert back == eta
+    first, second = p.unpack_ticks(back.ticks)  # type: ignore[union-attr]
+    assert first == p.TickReport(truth, (0.0, 0.5, 1.0, 1 / 7), 0x12345)
+    assert second.truth.pos_ned_m == (4.0, 5.0, -6.0) and not second.truth.on_ground and second.truth.crashed
+    assert p.last_position(records) == (4.0, 5.0, -6.0)
+    torn = p.encode(eta)[:4] + p.encode(eta)[4:]  # the same frame, then one with a record cut short
+    assert p.decode_body(torn[4:]) == eta
+    import msgspec
+
+    body = msgspec.msgpack.encode(["ETA", 8, 3, [1.0, 1.0, 1.0, 1.0], 1, records[:-1]])
+    with pytest.raises(p.ProtocolError, match="not a multiple of 141"):
+        p.decode_body(body)

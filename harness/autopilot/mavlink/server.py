@@ -44,7 +44,7 @@ from harness.autopilot.mavlink.personality import make_dialect
 from harness.autopilot.mavlink.pilot import PILOT_IDS, handle_pilot
 from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
-from harness.autopilot.mavlink.transport import Link, PortsConfig, UdpLink
+from harness.autopilot.mavlink.transport import Address, Link, PortsConfig, UdpLink
 from harness.core.clock import WALL, Clock
 from harness.core.endpoints import SETTLE_PREFIX
 
@@ -537,17 +537,26 @@ class MavlinkServer:
             self._send(Out(msg), now)
 
     def _send_all(self, outs: list[Out], now: int) -> None:
+        if not outs:
+            return
+        dests: dict[tuple[int, bool], list[Address]] = {}  # a batch at one instant: the same peers for all
         for o in outs:
-            self._send(o, now)
+            self._send(o, now, dests)
 
-    def _send(self, out: Out, now: int) -> None:
+    def _send(self, out: Out, now: int, dests: dict[tuple[int, bool], list[Address]] | None = None) -> None:
         data = self.codec.encode(out.msg)
         if self._tap is not None:
             self._tap(data)
         sent = 0
         if out.to is None:
-            for link in self.links:
-                for addr in link.destinations(now, sim_peers=not out.wall_clock):
+            sim_peers = not out.wall_clock
+            for k, link in enumerate(self.links):
+                addrs = None if dests is None else dests.get((k, sim_peers))
+                if addrs is None:
+                    addrs = link.destinations(now, sim_peers=sim_peers)
+                    if dests is not None:
+                        dests[(k, sim_peers)] = addrs
+                for addr in addrs:
                     sent += link.send(data, addr)
         else:
             sent += self.links[out.to.link].send(data, out.to.addr)

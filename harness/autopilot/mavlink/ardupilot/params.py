@@ -23,30 +23,38 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True, slots=True)
 class Mapped:
-    """ArduPilot ``name`` = core ``core`` x ``scale``."""
+    """ArduPilot ``name`` = core ``core`` x ``scale``.
+
+    ``ap_range`` is ArduCopter's documented range where it reaches beyond the core's: a value in it is accepted
+    and stored as given (a read returns it, as ArduCopter's would) and the core gets the nearest value it
+    takes (``THR_MIN`` = 10, i.e. 1 %, flies with ``MPC_THR_MIN`` = 0.05). Without one, the core's range
+    in ArduPilot units is the range.
+    """
 
     name: str
     core: str
     scale: float
     type: ParamType = ParamType.FLOAT
     unit: str = ""
+    ap_range: tuple[float, float] | None = None
 
 
 MAPPED: tuple[Mapped, ...] = (
-    Mapped("WPNAV_SPEED", "MPC_XY_CRUISE", 100.0, unit="cm/s"),
-    Mapped("WPNAV_SPEED_UP", "MPC_Z_VEL_MAX_UP", 100.0, unit="cm/s"),
-    Mapped("WPNAV_SPEED_DN", "MPC_Z_VEL_MAX_DN", 100.0, unit="cm/s"),
-    Mapped("WPNAV_ACCEL", "MPC_ACC_HOR", 100.0, unit="cm/s/s"),
+    Mapped("WPNAV_SPEED", "MPC_XY_CRUISE", 100.0, unit="cm/s", ap_range=(10.0, 2000.0)),
+    Mapped("WPNAV_SPEED_UP", "MPC_Z_VEL_MAX_UP", 100.0, unit="cm/s", ap_range=(10.0, 1000.0)),
+    Mapped("WPNAV_SPEED_DN", "MPC_Z_VEL_MAX_DN", 100.0, unit="cm/s", ap_range=(10.0, 500.0)),
+    Mapped("WPNAV_ACCEL", "MPC_ACC_HOR", 100.0, unit="cm/s/s", ap_range=(50.0, 500.0)),
     Mapped("WPNAV_RADIUS", "NAV_ACC_RAD", 100.0, unit="cm"),
-    Mapped("LAND_SPEED", "MPC_LAND_SPEED", 100.0, unit="cm/s"),
-    Mapped("RTL_ALT", "RTL_RETURN_ALT", 100.0, unit="cm"),
+    Mapped("LAND_SPEED", "MPC_LAND_SPEED", 100.0, unit="cm/s", ap_range=(30.0, 200.0)),
+    Mapped("RTL_ALT", "RTL_RETURN_ALT", 100.0, unit="cm", ap_range=(30.0, 300000.0)),
     Mapped("RTL_LOIT_TIME", "RTL_LAND_DELAY", 1000.0, unit="ms"),
-    Mapped("DISARM_DELAY", "COM_DISARM_PRFLT", 1.0, ParamType.INT32, "s"),
+    Mapped("DISARM_DELAY", "COM_DISARM_PRFLT", 1.0, ParamType.INT32, "s", ap_range=(0.0, 127.0)),
     Mapped("GUID_TIMEOUT", "COM_OF_LOSS_T", 1.0, unit="s"),
-    Mapped("ANGLE_MAX", "MPC_TILTMAX_AIR", 100.0, unit="cdeg"),
+    Mapped("ANGLE_MAX", "MPC_TILTMAX_AIR", 100.0, unit="cdeg", ap_range=(1000.0, 8000.0)),
     Mapped("BATT_CAPACITY", "BAT_CAPACITY", 1.0, ParamType.INT32, "mAh"),
     Mapped("MOT_THST_HOVER", "MPC_THR_HOVER", 1.0),
-    Mapped("THR_MIN", "MPC_THR_MIN", 1000.0),  # ArduCopter 3.x name (DroneKit's vehicle_state.py reads it)
+    # ArduCopter 3.x name (DroneKit's vehicle_state.py reads it and writes 10): 0-300 in 0.1 % of throttle
+    Mapped("THR_MIN", "MPC_THR_MIN", 1000.0, unit="0.1 %", ap_range=(0.0, 300.0)),
     Mapped("PSC_POSXY_P", "MPC_XY_P", 1.0),
     Mapped("PSC_POSZ_P", "MPC_Z_P", 1.0),
     Mapped("ATC_ANG_RLL_P", "MC_ROLL_P", 1.0),
@@ -132,9 +140,10 @@ class CopterParams(Params):
         for m in self._mapped.values():
             d = core.definition(m.core)
             assert d is not None
-            mapped_defs.append(
-                ParamDef(m.name, m.type, round(d.default * m.scale, 6), d.min * m.scale, d.max * m.scale, m.unit)
-            )
+            lo, hi = d.min * m.scale, d.max * m.scale  # every value the core can show, and ArduCopter's range
+            if m.ap_range is not None:
+                lo, hi = min(lo, m.ap_range[0]), max(hi, m.ap_range[1])
+            mapped_defs.append(ParamDef(m.name, m.type, round(d.default * m.scale, 6), lo, hi, m.unit))
         super().__init__(tuple(mapped_defs) + own_defs(sysid))
         self._syncing = False
         for m in self._mapped.values():  # current core values (overrides included)
@@ -149,15 +158,33 @@ class CopterParams(Params):
     def set(self, name: str, value: float) -> CommandResult:
         m = self._mapped.get(name)
         if m is not None and not self._syncing:
-            r = self.core.set(m.core, float(value) / m.scale)  # the core validates; its change comes back here
-            if not r.ok:
-                return CommandResult.denied(f"{name}={value}: {r.reason} (as {m.core})")
-            return super().set(name, value)
+            return self._set_mapped(m, value)
         if name == "SYSID_THISMAV" and name in self and value != self[name]:
             return CommandResult.denied("SYSID_THISMAV is fixed by the run (the vehicle index + 1)")
         r = super().set(name, value)
         if r.ok and name.startswith("FENCE_"):
             self.apply_fence()
+        return r
+
+    def _set_mapped(self, m: Mapped, value: float) -> CommandResult:
+        """Validate in ArduPilot's range, store as given, give the core the nearest value it takes."""
+        old = self[m.name]
+        r = super().set(m.name, value)
+        if not r.ok:
+            return r
+        d = self.core.definition(m.core)
+        assert d is not None
+        core_value = min(max(float(value) / m.scale, d.min), d.max)
+        if core_value != float(value) / m.scale:
+            log.info("%s=%g: the core flies %s=%g (the nearest it takes)", m.name, value, m.core, core_value)
+        self._syncing = True  # the core's change is not shown back: the value stays as the script set it
+        try:
+            rc = self.core.set(m.core, core_value)
+        finally:
+            self._syncing = False
+        if not rc.ok:
+            super().set(m.name, old)
+            return CommandResult.denied(f"{m.name}={value}: {rc.reason} (as {m.core})")
         return r
 
     def _core_changed(self, core_name: str, value: float) -> None:
