@@ -20,6 +20,7 @@ from pathlib import Path
 
 from harness.core.clock import NS_PER_S
 from harness.record.rrd import RrdRecorder
+from harness.record.sample import VehicleSample
 from harness.record.viewer import free_port
 from harness.record.world import WorldRecorder
 
@@ -36,17 +37,19 @@ def feed(sink: RrdRecorder | WorldRecorder, n: int, sim_s: float) -> float:
         for i in range(n):
             a = 0.1 * t + i
             sink.vehicle(
-                t_ns,
-                i,
-                (20 * math.cos(a), 20 * math.sin(a), -10.0),
-                (math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)),
-                (-2 * math.sin(a), 2 * math.cos(a), 0.0),
-                47.0 + 1e-5 * math.cos(a),
-                8.0 + 1e-5 * math.sin(a),
-                500.0,
-                (0.5, 0.5, 0.5, 0.5),
-                False,
-                False,
+                VehicleSample(
+                    t_ns=t_ns,
+                    vehicle=i,
+                    pos_ned_m=(20 * math.cos(a), 20 * math.sin(a), -10.0),
+                    quat_wxyz=(math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)),
+                    vel_ned_m_s=(-2 * math.sin(a), 2 * math.cos(a), 0.0),
+                    lat_deg=47.0 + 1e-5 * math.cos(a),
+                    lon_deg=8.0 + 1e-5 * math.sin(a),
+                    alt_amsl_m=500.0,
+                    motors=(0.5, 0.5, 0.5, 0.5),
+                    on_ground=False,
+                    crashed=False,
+                )
             )
         sink.tick(t_ns, k * 5, t / 20.0, 50.0)
     sink.close()

@@ -4,6 +4,8 @@ terminal helpers ``cli.py`` shares with them (progress lines, Ctrl-C as an inter
 from __future__ import annotations
 
 import argparse
+import logging
+import os
 import signal
 import sys
 from collections.abc import Callable
@@ -141,6 +143,12 @@ def cmd_sweep(a: argparse.Namespace, rest: list[str]) -> int:
         print(f"  {row['run']}: {row.get('status')}: {row.get('message')}", file=sys.stderr)
     if outcome.interrupted:
         print("re-run the same command to finish the missing runs", file=sys.stderr)
+        # Every run has stopped and results.csv is written. Dask's own exit hook would close the local cluster
+        # gracefully once more (up to 10 s on a loaded machine) after the sweep closed it in a hurry: end now.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        logging.shutdown()
+        os._exit(outcome.exit_code)
     if a.plot and not outcome.interrupted:
         from harness.sweep.plot import make_sweep_plots
 

@@ -55,6 +55,9 @@ TRAIL_DT_S = 0.2
 """One trail point per this much sim time."""
 VIEW_STEP_S = 1.0
 """Trails and radio links are logged once per this much sim time."""
+MODE_DT_S = 0.2
+"""The autopilots' flight mode and armed state (the vehicles' labels) are sampled this often in sim time, as
+the run records: a batch can span seconds of sim in a fast run, and a mode must not slip between two."""
 PALETTE: tuple[tuple[int, int, int], ...] = (
     (255, 120, 0),  # orange
     (230, 30, 200),  # magenta
@@ -175,6 +178,9 @@ class RrdRecorder:
         self._spawned = False
         self._aps: Mapping[int, AutopilotApi] = {}
         self._ap_seen: dict[tuple[str, int], Any] = {}
+        self._mode_t: float | None = None
+        self._labels: list[tuple[float, int, str]] = []
+        """Label changes (sim time, vehicle, text) sampled since the last batch."""
         self._battery: list[float] = [math.nan] * n_vehicles
         self._links = LinkTracker()
         self._events_file: Any = None
@@ -189,6 +195,9 @@ class RrdRecorder:
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
         t_s = t_ns / NS_PER_S
+        if self._aps and (self._mode_t is None or t_s - self._mode_t >= MODE_DT_S - 1e-9):
+            self._mode_t = t_s
+            self._sample_labels(t_s)
         self._buf.tick_t_s.append(t_s)
         self._buf.rtf.append(t_s / wall_s if wall_s > 0 else 0.0)
         if self._buf.span_s() >= self.batch_s:
@@ -285,11 +294,27 @@ class RrdRecorder:
                 indexes=[rr.TimeColumn("sim_time", duration=np.asarray(b.tick_t_s))],
                 columns=rr.Scalars.columns(scalars=np.asarray(b.rtf)),
             )
+        for t_s, i, label in self._labels:
+            self._rec.set_time("sim_time", duration=t_s)
+            self._rec.log(f"world/vehicle/{i}/body", self._rr.Boxes3D.from_fields(labels=[label]))
+        self._labels.clear()
         if b.t_s:
             now_s = b.t_s[-1]
             self._rec.set_time("sim_time", duration=now_s)
             self._poll_autopilots()
         b.clear()
+
+    def _sample_labels(self, t_s: float) -> None:
+        """Each vehicle's name, flight mode and armed state now, kept when it changed (logged with the batch)."""
+        for i, ap in sorted(self._aps.items()):
+            try:
+                st = ap.state()
+            except Exception as exc:  # the view must never end a run
+                log.debug("view: autopilot %d not readable: %r", i, exc)
+                continue
+            label = f"vehicle {i} {st.mode.name}{' armed' if st.armed else ''}"
+            if self._changed(("label", i), label):
+                self._labels.append((t_s, i, label))
 
     def _send_vehicles(self, b: _Buffer) -> None:
         rr = self._rr
@@ -336,8 +361,10 @@ class RrdRecorder:
                 self._view_step(t, pos[j])
         if not self._spawned:
             self._spawned = True
+            rec.set_time("sim_time", duration=b.t_s[0])  # the name from the start; the sampled modes follow
             for i in range(n):
-                rec.log(f"world/vehicle/{i}/body", rr.Boxes3D.from_fields(labels=[f"vehicle {i}"], show_labels=True))
+                first = next((label for _, j, label in self._labels if j == i), f"vehicle {i}")  # with its mode
+                rec.log(f"world/vehicle/{i}/body", rr.Boxes3D.from_fields(labels=[first], show_labels=True))
             rec.log(
                 "world/spawn",
                 rr.Points3D(
@@ -366,9 +393,6 @@ class RrdRecorder:
             except Exception as exc:  # the view must never end a run
                 log.debug("view: autopilot %d not readable: %r", i, exc)
                 continue
-            label = f"vehicle {i} {st.mode.name}{' armed' if st.armed else ''}"
-            if self._changed(("label", i), label):
-                rec.log(f"world/vehicle/{i}/body", rr.Boxes3D.from_fields(labels=[label]))
             if st.home_ned_m is not None:
                 homes[i] = st.home_ned_m
             pct = 100.0 * st.battery.remaining

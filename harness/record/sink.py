@@ -58,11 +58,21 @@ class _Opening:
     def __init__(self, open_view: Callable[[], RrdRecorder | None]) -> None:
         self.view: RrdRecorder | None = None
         self._open = open_view
+        self._given_up = threading.Event()
         self._thread = threading.Thread(target=self._run, name="open-world.rrd", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
-        self.view = self._open()
+        view = self._open()
+        if view is not None and self._given_up.is_set():  # the run ended while Rerun was being imported
+            view.close()
+            view.path.unlink(missing_ok=True)
+            view = None
+        self.view = view
+
+    def give_up(self) -> None:
+        """Nobody will wait for the view: it is closed and removed if it opens after all."""
+        self._given_up.set()
 
     def done(self) -> bool:
         return not self._thread.is_alive()
@@ -138,6 +148,18 @@ class WorldTee:
     def flush(self) -> None:
         self.mcap.flush()
         self._guard(lambda v: v.flush())
+
+    def interrupted(self) -> None:
+        """The run was stopped (Ctrl-C, SIGTERM). A view still being opened is given up, not waited for:
+        importing Rerun takes seconds of wall time on a loaded machine, and a run must stop at once (a sweep
+        kills a run that has not stopped within 3 s). ``world.mcap`` is complete; ``world.rrd`` is not written."""
+        if self._opening is None or self._opening.done():
+            return
+        self._opening.give_up()
+        if not self._opening.done():  # (done after all: close() replays the backlog as usual)
+            log.warning("the run was stopped while world.rrd was being opened: no world.rrd for this run")
+            self._opening = None
+            self._backlog = []
 
     def close(self) -> None:
         try:

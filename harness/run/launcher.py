@@ -165,6 +165,7 @@ class Launcher:
                 status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
             except KeyboardInterrupt:
                 status, message = RunStatus.INTERRUPTED, "stopped by Ctrl-C"
+                world.interrupted()
             except SimulationError as exc:
                 status, message = RunStatus.FAILED, str(exc)
             except Exception as exc:  # a bug must still stop every process and write the summary

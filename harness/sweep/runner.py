@@ -33,6 +33,11 @@ log = logging.getLogger(__name__)
 
 STOP_WAIT_S = 4.0
 """After Ctrl-C, how long the client waits for the workers to stop their runs (they need ~2 s)."""
+CLOSE_S = 4.0
+"""How long closing the client, and then the local cluster, may take at the end of a sweep."""
+CLOSE_STOPPING_S = 0.5
+"""The same after Ctrl-C, when every run has stopped: a graceful close of Dask's scheduler took 5 s and more
+on a loaded machine, and nothing is left for it to do (the in-process cluster ends with this process)."""
 HEALTH_EVERY_S = 5.0
 SCHEDULER_LOST_S = 60.0
 _ADDRESS = re.compile(r"^([a-z]+://)?[^\s:/]+:\d+$")
@@ -175,8 +180,10 @@ def run_sweep(
             report(f"{row['run']}: {row.get('status')}")
 
         report()
-        with _Cluster(opts) as client:
+        cluster = _Cluster(opts)
+        with cluster as client:
             interrupted = _drive(client, jobs, token, on_row, report, clock)
+            cluster.stopping = interrupted
 
     files = write_results(out, ordered(), params)
     return SweepOutcome(ordered(), len(rows) - kept, kept, interrupted, now_s() - t0, files)
@@ -278,6 +285,8 @@ class _Cluster:
         self.opts = opts
         self.cluster: Any = None
         self.client: Any = None
+        self.stopping = False
+        """Stopped by Ctrl-C: close in a hurry (see ``CLOSE_STOPPING_S``)."""
 
     def __enter__(self) -> Any:
         from distributed import Client, LocalCluster
@@ -302,10 +311,11 @@ class _Cluster:
         return self.client
 
     def __exit__(self, *exc: object) -> None:
+        bound = CLOSE_STOPPING_S if self.stopping else CLOSE_S
         if self.client is not None:
-            _bounded(lambda: self.client.close(timeout=3), 4.0)
+            _bounded(lambda: self.client.close(timeout=bound), bound)
         if self.cluster is not None:
-            _bounded(lambda: self.cluster.close(timeout=3), 4.0)
+            _bounded(lambda: self.cluster.close(timeout=bound), bound)
 
 
 def _bounded(call: Callable[[], object], timeout_s: float) -> None:

@@ -154,14 +154,15 @@ def build_sweep(scenario: str | Path, seeds: str | None, sets: Sequence[str]) ->
     for p in params:  # every value once (the loader's message, with the --set that caused it)
         for text, value in zip(p.texts, p.values, strict=True):
             _validate(scenario, [(p.path, value)], f"--set {p.path}={text}")
+    with_net = [p.path for p in params if p.path == "network.model"]
     runs: list[RunSpec] = []
     names: set[str] = set()
     for combo in itertools.product(*(list(zip(p.texts, p.values, strict=True)) for p in params)):
         chosen = [(p.path, value) for p, (_, value) in zip(params, combo, strict=True)]
+        what = " ".join(f"--set {p.path}={t}" for p, (t, _) in zip(params, combo, strict=True))
         if len(params) > 1:  # values valid one by one may still clash (e.g. rates): check the combination
-            _validate(
-                scenario, chosen, " ".join(f"--set {p.path}={t}" for p, (t, _) in zip(params, combo, strict=True))
-            )
+            _validate(scenario, chosen, what)
+        _no_idle_network_params(scenario, params, chosen, what if with_net else "")
         for seed in seed_list:
             sets_text = tuple((p.path, t) for p, (t, _) in zip(params, combo, strict=True))
             name = run_name(seed, sets_text)
@@ -170,6 +171,20 @@ def build_sweep(scenario: str | Path, seeds: str | None, sets: Sequence[str]) ->
             names.add(name)
             runs.append(RunSpec(name, seed, sets_text, tuple(chosen)))
     return SweepSpec(scenario, seed_list, params, tuple(runs))
+
+
+def _no_idle_network_params(
+    scenario: Path, params: Sequence[SweepParam], chosen: list[tuple[str, Any]], what: str
+) -> None:
+    """A swept ``network.params.X`` in a run without a network model would change nothing: one line, not a
+    sweep whose column means nothing."""
+    swept = [p.path for p in params if p.path.startswith("network.params.")]
+    if swept and load_scenario(scenario, sets=chosen).network == "none":
+        where = f"{what}: " if what else ""
+        raise ScenarioError(
+            f"--set {swept[0]}: {where}the network model is 'none' in {scenario}, so network parameters change "
+            'nothing; set network.model = "builtin" (or "ns3") in the file or add --set network.model=builtin'
+        )
 
 
 def _validate(scenario: Path, sets: list[tuple[str, Any]], what: str) -> None:

@@ -104,6 +104,15 @@ def test_two_parameters_and_the_files_seed_by_default(tmp_path: Path) -> None:
             ["network.model=builtin", "network.params.bitrate=1e6"],
             "--set network.model=builtin --set network.params.bitrate=1e6: {path}: network.params.bitrate: unknown parameter",
         ),
+        (  # the file has no network: sweeping its parameters would change nothing
+            ["network.params.bit_rate_bps=1e6,2e6"],
+            "--set network.params.bit_rate_bps: the network model is 'none' in {path}, so network parameters change nothing",
+        ),
+        (
+            ["network.model=builtin,none", "network.params.bit_rate_bps=1e6"],
+            "--set network.params.bit_rate_bps: --set network.model=none --set network.params.bit_rate_bps=1e6: "
+            "the network model is 'none'",
+        ),
     ],
 )
 def test_mistakes_are_one_line_before_anything_starts(tmp_path: Path, sets: list[str], message: str) -> None:
@@ -113,6 +122,15 @@ def test_mistakes_are_one_line_before_anything_starts(tmp_path: Path, sets: list
     text = str(err.value)
     assert "\n" not in text
     assert text.startswith(message.format(path=path)), text
+
+
+def test_network_parameters_sweep_with_a_network(tmp_path: Path) -> None:
+    path = scenario(tmp_path, '[network]\nmodel = "builtin"\n')
+    spec = build_sweep(path, "0", ["network.params.bit_rate_bps=1e6,2e6"])
+    assert [r.params() for r in spec.runs] == [
+        {"network.params.bit_rate_bps": 1e6},
+        {"network.params.bit_rate_bps": 2e6},
+    ]
 
 
 def test_cli_reports_one_line_and_starts_nothing(tmp_path: Path) -> None:

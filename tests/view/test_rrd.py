@@ -88,5 +88,19 @@ def test_world_rrd_of_a_two_vehicle_run_holds_every_pose(tmp_path: Path) -> None
     assert len(rrd["/series/altitude_m"]["Scalars:scalars"]) == len(rrd["/world/vehicle/0"]["sim_time"])
     labels = {lab for row in rrd["/world/vehicle/0/body"]["Boxes3D:labels"] for lab in row}
     assert {"vehicle 0 TAKEOFF armed", "vehicle 0 LAND armed"} <= labels, labels
+    # the modes are sampled as the run records (every 0.2 s of sim), not once per batch of seconds: the label
+    # says TAKEOFF by the time the vehicle leaves the ground, and LAND by the time it starts to come down
+    first: dict[str, float] = {}
+    body = rrd["/world/vehicle/0/body"]
+    for t_s, row in zip(body["sim_time"], body["Boxes3D:labels"], strict=True):
+        first.setdefault(row[0], t_s)
+    track = list(
+        zip(rrd["/world/vehicle/0"]["sim_time"], rrd["/world/vehicle/0"]["Transform3D:translation"], strict=True)
+    )
+    liftoff = next(t for t, p in track if -p[0][2] > 0.5)
+    top_t, top_p = max(track, key=lambda tp: -tp[1][0][2])
+    descent = next(t for t, p in track if t > top_t and -p[0][2] < -top_p[0][2] - 0.5)
+    assert first["vehicle 0 TAKEOFF armed"] <= liftoff, (first, liftoff)
+    assert first["vehicle 0 LAND armed"] <= descent, (first, descent)
     assert len(rrd["/world/home"]["Points3D:positions"][-1]) == 2
     assert len(rrd["/map/vehicles"]["GeoPoints:positions"][0]) == 2

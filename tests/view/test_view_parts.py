@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -10,6 +13,10 @@ from harness import cli
 from harness.record import sink, viewer
 from harness.record.links import LinkTracker, ratio_color
 from harness.record.sample import VehicleSample
+
+SAMPLE = VehicleSample(
+    0, 0, (0.0, 0.0, -1.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 47.0, 8.0, 401.0, (0.0,) * 4, False, False
+)
 
 
 def test_delivery_ratio_per_pair_over_a_sliding_window() -> None:
@@ -42,11 +49,7 @@ def test_without_rerun_a_run_records_mcap_only_and_harness_view_says_how_to_get_
     monkeypatch.setattr(sink, "rerun_available", lambda: False)
     monkeypatch.setattr(viewer, "rerun_available", lambda: False)
     world = sink.open_world(tmp_path, 0, 1, (47.0, 8.0, 400.0))
-    world.vehicle(
-        VehicleSample(
-            0, 0, (0.0, 0.0, -1.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 47.0, 8.0, 401.0, (0.0,) * 4, False, False
-        )
-    )
+    world.vehicle(SAMPLE)
     world.close()
     assert (tmp_path / "world.mcap").is_file() and not (tmp_path / "world.rrd").exists()
     assert cli.main(["view", str(tmp_path)]) == 2
@@ -91,3 +94,38 @@ def test_event_lines_are_decoded_in_one_go_and_a_bad_line_is_skipped() -> None:
     (q,) = lt.quality(1.0)
     assert (q.pair, q.delivered, q.dropped) == ((0, 1), 2, 2)
     assert [d.cause for d in lt.pop_drops(1.0)] == ["collision", "collision"]
+
+
+def test_a_run_stopped_while_the_view_opens_does_not_wait_for_it(tmp_path: Path) -> None:
+    """Ctrl-C while Rerun is still being imported (seconds on a loaded machine; `harness run` on main could
+    even hang there): the run stops at once with a complete world.mcap, and the view, once it opens after
+    all, is closed and its file removed."""
+    from harness.record.world import WorldRecorder
+
+    release = threading.Event()
+    closed: list[Path] = []
+
+    class LateView:  # the RrdRecorder that the opening thread would return
+        path = tmp_path / "world.rrd"
+
+        def close(self) -> None:
+            closed.append(self.path)
+
+    def open_late() -> Any:
+        release.wait(30)
+        LateView.path.write_bytes(b"rrd")
+        return LateView()
+
+    opening = sink._Opening(open_late)
+    tee = sink.WorldTee(WorldRecorder(tmp_path / "world.mcap", 0, 1), None, opening)
+    tee.vehicle(SAMPLE)  # waits in the backlog for the view
+    t0 = time.monotonic()
+    tee.interrupted()
+    tee.close()
+    assert time.monotonic() - t0 < 1.0
+    assert (tmp_path / "world.mcap").stat().st_size > 0
+    release.set()
+    deadline = time.monotonic() + 10
+    while not opening.done() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert closed == [LateView.path] and not LateView.path.exists()
