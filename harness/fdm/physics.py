@@ -156,6 +156,9 @@ class _Vehicle:
         self.turbulence = Turbulence(cfg.wind, rng)
         self.counters = VehicleCounters()
         self.crashed = False
+        self.resting = d >= 0.0
+        """Spawned standing on the ground: on the ground before the first step too (JSBSim computes the
+        gear's force only when it steps, so the initial frame would otherwise read "not on the ground")."""
         self.airborne = False
         self.last_v_down = 0.0
         self.impact_speed_m_s = 0.0
@@ -234,6 +237,7 @@ class Physics:
             run = v.fdm.run
             for _ in substeps:
                 run()
+            v.resting = False
         self._t_ns += self.tick_ns
         self._tick += 1
         self._frames = [self._frame(v) for v in self.vehicles]
@@ -274,7 +278,7 @@ class Physics:
         quat = quat_from_euler(phi, theta, psi)
         m = v.mass_kg
         sf = (fx * N_PER_LBF / m, fy * N_PER_LBF / m, fz * N_PER_LBF / m)
-        on_ground = abs(fgear) > 1e-3
+        on_ground = abs(fgear) > 1e-3 or v.resting
         if on_ground:
             if v.airborne and not v.crashed:
                 v.impact_speed_m_s = v.last_v_down

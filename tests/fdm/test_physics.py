@@ -186,3 +186,12 @@ def test_hard_impact_is_a_crash_and_cuts_the_motors() -> None:
     assert f.truth.crashed and ph.crashed(0)
     assert ph.vehicles[0].motors == (0.0, 0.0, 0.0, 0.0)
     assert ph.vehicles[0].impact_speed_m_s > 3.0
+
+
+def test_a_vehicle_spawned_on_the_ground_stands_on_it_from_the_first_frame() -> None:
+    ph = Physics(PhysicsConfig(n_vehicles=2, sensors=QUIET, spawn_ned_m=((0.0, 0.0, 0.0), (5.0, 0.0, -20.0))))
+    ground, air = ph.frames()  # before any step: JSBSim has not computed a gear force yet
+    assert ground.truth.on_ground and not air.truth.on_ground
+    for _ in range(5):
+        ground, air = ph.step([(0.0,) * 4, (0.0,) * 4])
+    assert ground.truth.on_ground and not air.truth.on_ground and not ground.truth.crashed
