@@ -404,7 +404,8 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         "--workers",
         default=None,
         metavar="N|auto",
-        help="spread the vehicles' physics and autopilots over N processes (1)",
+        help="spread the vehicles' physics and autopilots over N processes (default auto: one per core, "
+        "with at least 2 vehicles each)",
     )
     r.add_argument("--join-timeout", type=float, default=600.0, help="wall seconds to wait for the remote vehicles")
 

@@ -182,6 +182,8 @@ class RrdRecorder:
         self._labels: list[tuple[float, int, str]] = []
         """Label changes (sim time, vehicle, text) sampled since the last batch."""
         self._battery: list[float] = [math.nan] * n_vehicles
+        self._status: dict[int, int] = {}
+        """The last END-TICK-AC status of each vehicle whose autopilot is not in this process (its label)."""
         self._links = LinkTracker()
         self._events_file: Any = None
         self._events_rest = b""
@@ -192,10 +194,12 @@ class RrdRecorder:
     def vehicle(self, s: VehicleSample) -> None:
         w, x, y, z = s.quat_wxyz
         self._buf.add(s.t_ns / NS_PER_S, s.vehicle, (s.pos_ned_m, (x, y, z, w), s.vel_ned_m_s, (s.lat_deg, s.lon_deg)))
+        if s.status and s.vehicle not in self._aps:
+            self._status[s.vehicle] = s.status
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
         t_s = t_ns / NS_PER_S
-        if self._aps and (self._mode_t is None or t_s - self._mode_t >= MODE_DT_S - 1e-9):
+        if (self._aps or self._status) and (self._mode_t is None or t_s - self._mode_t >= MODE_DT_S - 1e-9):
             self._mode_t = t_s
             self._sample_labels(t_s)
         self._buf.tick_t_s.append(t_s)
@@ -315,6 +319,17 @@ class RrdRecorder:
             label = f"vehicle {i} {st.mode.name}{' armed' if st.armed else ''}"
             if self._changed(("label", i), label):
                 self._labels.append((t_s, i, label))
+        if self._status:
+            from harness.autopilot.api import FlightMode
+            from harness.wire.protocol import unpack_status
+
+            for i, status in sorted(self._status.items()):  # flown in another process: mode from its status
+                armed, _, main, sub = unpack_status(status)
+                mode = FlightMode.from_px4(main, sub)
+                label = f"vehicle {i} {mode.name if mode is not None else f'mode {main}.{sub}'}"
+                label += " armed" if armed else ""
+                if self._changed(("label", i), label):
+                    self._labels.append((t_s, i, label))
 
     def _send_vehicles(self, b: _Buffer) -> None:
         rr = self._rr

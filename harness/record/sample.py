@@ -24,6 +24,9 @@ class VehicleSample(msgspec.Struct, frozen=True):
     motors: tuple[float, ...]
     on_ground: bool
     crashed: bool
+    status: int = 0
+    """The autopilot's END-TICK-AC status (``harness.wire.protocol.pack_status``: armed, landed state, PX4
+    mode), so that a vehicle flown in another process still has its mode in the view."""
 
 
 class WorldEvent(enum.StrEnum):

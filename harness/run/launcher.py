@@ -455,6 +455,7 @@ class Launcher:
                         row.motors[v],
                         tr.on_ground,
                         tr.crashed,
+                        row.status[v],
                     )
                 )
             world.tick(t_ns, row.tick, row.wall_s, row.tick_us)

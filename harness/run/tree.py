@@ -78,8 +78,25 @@ def fill_remote(summaries: Sequence[Any], exits: Sequence[Any], first_remote: in
             s.mission, s.mission_exit_code = e.peer, e.exit_code
 
 
+AUTO = 0
+"""``--workers auto`` (the default): :func:`auto_workers` decides from the vehicle count and the cores."""
+MIN_VEHICLES_PER_WORKER = 2
+"""``auto`` gives a process a share only when it has at least this many vehicles. Two workers pay already
+at 2 vehicles on an idle 2-core machine (``docs/tree.md``), but a host's vehicles have no home, mission or
+geofence in the 3D view yet, so runs of 1–3 vehicles (the demo, most tests) stay in one process."""
+
+
+def auto_workers(vehicles: int, cores: int | None = None) -> int:
+    """One process per core this process may use, each with at least ``MIN_VEHICLES_PER_WORKER`` vehicles."""
+    cores = len(os.sched_getaffinity(0)) if cores is None else cores
+    return max(1, min(cores, vehicles // MIN_VEHICLES_PER_WORKER))
+
+
 def worker_groups(vehicles: int, workers: int) -> list[range]:
-    """Vehicles 0…n-1 in ``workers`` contiguous shares, as equal as they go (none empty)."""
+    """Vehicles 0…n-1 in ``workers`` contiguous shares (``AUTO``: :func:`auto_workers`), as equal as they go
+    (none empty)."""
+    if workers == AUTO:
+        workers = auto_workers(vehicles)
     workers = max(1, min(workers, vehicles))
     base, extra = divmod(vehicles, workers)
     out, start = [], 0
@@ -91,9 +108,9 @@ def worker_groups(vehicles: int, workers: int) -> list[range]:
 
 
 def parse_workers(text: str) -> int:
-    """``--workers N|auto`` (auto: one per CPU core this process may use)."""
+    """``--workers N|auto``: N, or ``AUTO`` (decided per run by :func:`auto_workers`)."""
     if text == "auto":
-        return max(1, len(os.sched_getaffinity(0)))
+        return AUTO
     try:
         n = int(text)
     except ValueError:

@@ -51,9 +51,10 @@ class LaunchPlan:
     """The root channel's address (default: a free loopback port); off loopback it needs ``secret``."""
     secret: bytes | None = None
     join_timeout_s: float = 600.0
-    workers: int = 1
+    workers: int = 0
     """Processes that simulate the vehicles (physics and autopilots): this one and ``workers - 1`` autopilot
-    hosts, each with an equal share of the vehicles (:func:`harness.run.tree.worker_groups`)."""
+    hosts, each with an equal share of the vehicles (:func:`harness.run.tree.worker_groups`); 0 = auto, one
+    per core with at least 2 vehicles each (:func:`harness.run.tree.auto_workers`)."""
     seed: int = 0
     physics_hz: float = 1000.0
     tick_hz: float = 250.0

@@ -16,7 +16,7 @@ import pytest
 from harness.core.errors import ScenarioError, SimulationError
 from harness.record.world import read_topics
 from harness.run.ledger import Ledger, Row
-from harness.run.tree import parse_workers, worker_groups
+from harness.run.tree import AUTO, auto_workers, parse_workers, worker_groups
 from harness.wire import protocol as p
 from tests.run.flights import MISSIONS, running_sim_time
 from tests.run.test_run import harness, pids_with_run_dir
@@ -26,7 +26,11 @@ def test_worker_groups_cover_every_vehicle_once_in_equal_shares() -> None:
     assert worker_groups(10, 3) == [range(0, 4), range(4, 7), range(7, 10)]
     assert worker_groups(2, 8) == [range(0, 1), range(1, 2)]  # never an empty worker
     assert worker_groups(5, 1) == [range(0, 5)]
-    assert parse_workers("3") == 3 and parse_workers("auto") >= 1
+    assert parse_workers("3") == 3 and parse_workers("auto") == AUTO
+    # auto: one process per core, each with at least 2 vehicles; 1 vehicle is always 1 process
+    assert [auto_workers(n, cores=2) for n in (1, 2, 3, 4, 10, 100)] == [1, 1, 1, 2, 2, 2]
+    assert auto_workers(100, cores=8) == 8 and auto_workers(12, cores=8) == 6
+    assert worker_groups(1, AUTO) == [range(0, 1)]
     with pytest.raises(ScenarioError, match="--workers must be >= 1"):
         parse_workers("0")
     with pytest.raises(ScenarioError, match="'auto', got 'many'"):

@@ -41,7 +41,10 @@ def read_rrd(path: Path) -> dict[str, dict[str, list[Any]]]:
     return out
 
 
-def test_world_rrd_of_a_two_vehicle_run_holds_every_pose(tmp_path: Path) -> None:
+@pytest.mark.parametrize("workers", [1, 2])
+def test_world_rrd_of_a_two_vehicle_run_holds_every_pose(tmp_path: Path, workers: int) -> None:
+    """With 2 workers vehicle 1 is simulated and flown in an autopilot host: its label (mode, armed) comes
+    from the status its host reports each tick."""
     out = tmp_path / "run"
     proc = subprocess.run(
         [
@@ -57,6 +60,8 @@ def test_world_rrd_of_a_two_vehicle_run_holds_every_pose(tmp_path: Path) -> None
             "builtin",
             "--mission",
             str(ROOT / "missions" / "takeoff_and_land.py"),
+            "--workers",
+            str(workers),
         ],
         capture_output=True,
         text=True,
@@ -86,8 +91,9 @@ def test_world_rrd_of_a_two_vehicle_run_holds_every_pose(tmp_path: Path) -> None
         assert alt == pytest.approx(summary["vehicles"][i]["max_altitude_m"], abs=0.1)
     # beyond poses: series, labels with the flight mode, home points, the map track
     assert len(rrd["/series/altitude_m"]["Scalars:scalars"]) == len(rrd["/world/vehicle/0"]["sim_time"])
-    labels = {lab for row in rrd["/world/vehicle/0/body"]["Boxes3D:labels"] for lab in row}
-    assert {"vehicle 0 TAKEOFF armed", "vehicle 0 LAND armed"} <= labels, labels
+    for i in range(2):
+        labels = {lab for row in rrd[f"/world/vehicle/{i}/body"]["Boxes3D:labels"] for lab in row}
+        assert {f"vehicle {i} TAKEOFF armed", f"vehicle {i} LAND armed"} <= labels, labels
     # the modes are sampled as the run records (every 0.2 s of sim), not once per batch of seconds: the label
     # says TAKEOFF by the time the vehicle leaves the ground, and LAND by the time it starts to come down
     first: dict[str, float] = {}
@@ -102,5 +108,6 @@ def test_world_rrd_of_a_two_vehicle_run_holds_every_pose(tmp_path: Path) -> None
     descent = next(t for t, p in track if t > top_t and -p[0][2] < -top_p[0][2] - 0.5)
     assert first["vehicle 0 TAKEOFF armed"] <= liftoff, (first, liftoff)
     assert first["vehicle 0 LAND armed"] <= descent, (first, descent)
-    assert len(rrd["/world/home"]["Points3D:positions"][-1]) == 2
+    # home points come from the autopilots in this process (a host's vehicles have none in the view)
+    assert len(rrd["/world/home"]["Points3D:positions"][-1]) == 2 // workers
     assert len(rrd["/map/vehicles"]["GeoPoints:positions"][0]) == 2
