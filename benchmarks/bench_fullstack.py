@@ -7,7 +7,7 @@ rates (physics 1 kHz, control tick 250 Hz, phases 0/1 every 5th tick = 50 Hz, i.
     .venv/bin/python benchmarks/bench_fullstack.py 1 10 --repeat 3 # chosen sizes, median of 3 runs
     .venv/bin/python benchmarks/bench_fullstack.py 1 --firmware ardupilot  # ArduCopter vehicles, DroneKit missions
     .venv/bin/python benchmarks/bench_fullstack.py 1 10 --firmware px4,ardupilot-mavsdk  # both personalities, same client
-    .venv/bin/python benchmarks/bench_fullstack.py 10 --workers 1,2       # autopilots in 1 and 2 processes, interleaved
+    .venv/bin/python benchmarks/bench_fullstack.py 10 --workers 1,2       # vehicles in 1 and 2 processes, interleaved
 
 With ``--firmware ardupilot`` the vehicles present the ArduCopter personality and each mission is
 ``missions/hover_dronekit.py`` (the same flight and beacons with DroneKit over SERIAL0, TCP) instead.
@@ -156,7 +156,7 @@ installed), web (``--view web``: world.rrd and the live stream served, with no v
 
 
 def run(
-    vehicles: int, hover_s: float, view: str = "file", speed: str = "max", firmware: str = "px4", workers: int = 1
+    vehicles: int, hover_s: float, view: str = "file", speed: str = "max", firmware: str = "px4", workers: str = "auto"
 ) -> Result:
     out = Path(tempfile.mkdtemp(prefix=f"bench-fullstack-{vehicles}-"))
     cmd = [
@@ -178,7 +178,7 @@ def run(
         "--speed",
         speed,
         "--workers",
-        str(workers),
+        workers,
         "--",
         str(hover_s),
         *([] if firmware == "native" else [str(BEACON_HZ)]),
@@ -227,12 +227,15 @@ def main() -> int:
     )
     ap.add_argument(
         "--workers",
-        default="1",
-        help="comma-separated `harness run --workers` settings to compare, runs interleaved (e.g. 1,2)",
+        default="auto",
+        help="comma-separated `harness run --workers` settings to compare, runs interleaved (e.g. 1,2; "
+        "default auto, as harness run)",
     )
     a = ap.parse_args()
     views = a.views.split(",")
-    workers = [int(w) for w in a.workers.split(",")]
+    workers = a.workers.split(",")
+    if any(w != "auto" and not w.isdigit() for w in workers):
+        ap.error(f"--workers: numbers or auto, got {a.workers!r}")
     stacks = a.firmware.split(",")
     settings = [(v, w, f) for v in views for w in workers for f in stacks]
     if any(v not in VIEWS for v in views):
@@ -250,17 +253,17 @@ def main() -> int:
         + ("" if stacks == ["native"] else f"; {BEACON_HZ:g} Hz radio beacons to every vehicle (not native)")
     )
     print(
-        f"{'view':>5} {'wk':>2} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
+        f"{'view':>5} {'wk':>4} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
         f"{'bare':>7} {'eff.':>5}   CPU s: harness run / missions / mavsdk_server / network"
     )
     for n in a.sizes:
-        by_setting: dict[tuple[str, int, str], list[Result]] = {s: [] for s in settings}
+        by_setting: dict[tuple[str, str, str], list[Result]] = {s: [] for s in settings}
         for _ in range(a.repeat):  # interleaved, so a change in the machine's load hits every setting alike
             for v, w, f in settings:
                 by_setting[v, w, f].append(run(n, a.hover, v, a.speed, f, w))
         bare = bare_rtf(n)
         for (v, w, f), runs in by_setting.items():
-            label = f"{v:>5} {w:>2}" + (f" {f}" if len(stacks) > 1 else "")
+            label = f"{v:>5} {w:>4}" + (f" {f}" if len(stacks) > 1 else "")
             report(label, n, sorted(runs, key=lambda x: x.rtf), a.repeat, bare)
     return 0
 
