@@ -6,6 +6,7 @@ import json
 import re
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -22,6 +23,15 @@ def running_sim_time(out: Path) -> float:
     except (OSError, ValueError):
         return 0.0
     return float(summary["sim_time_s"]) if summary.get("status") == "running" else 0.0
+
+
+def wait_for_sim_time(proc: subprocess.Popen[str], out: Path, sim_s: float, wall_timeout_s: float) -> None:
+    """Until the running ``harness run`` ``proc`` has recorded ``sim_s`` of sim time in ``out`` (asserted)."""
+    deadline = time.monotonic() + wall_timeout_s
+    while time.monotonic() < deadline and running_sim_time(out) < sim_s:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.2)
+    assert running_sim_time(out) >= sim_s, f"the run never recorded {sim_s:g} s of sim time"
 
 
 def flown(harness_run: Fly, script: str, *args: str) -> RunRecord:

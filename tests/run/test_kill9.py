@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 
 from harness.pytest_plugin import RunRecord
 from harness.record.status import read_summary
-from tests.run.flights import running_sim_time
+from tests.run.flights import wait_for_sim_time
 from tests.run.test_run import ROOT, harness, pids_with_run_dir
 
 pytestmark = pytest.mark.sim
@@ -27,11 +27,7 @@ def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_
     # a mission that flies for minutes: the run is killed in the middle, however slow the machine
     proc = harness("run", "--vehicles", "1", "--mission", str(HOVER), "--out", str(out), "--speed", "2", "--", "300")
     try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and running_sim_time(out) < 15.0:
-            assert proc.poll() is None, proc.communicate()
-            time.sleep(0.2)
-        assert running_sim_time(out) >= 15.0, "the run never recorded 15 s of sim time"
+        wait_for_sim_time(proc, out, 15.0, 120)
         assert pids_with_run_dir(out), "the mission process runs"
         proc.send_signal(signal.SIGKILL)
         proc.communicate(timeout=10)

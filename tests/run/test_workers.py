@@ -18,7 +18,7 @@ from harness.record.world import read_topics
 from harness.run.ledger import Ledger, Row
 from harness.run.tree import AUTO, auto_workers, parse_workers, worker_groups
 from harness.wire import protocol as p
-from tests.run.flights import MISSIONS, running_sim_time
+from tests.run.flights import MISSIONS, wait_for_sim_time
 from tests.run.test_run import harness, pids_with_run_dir
 
 
@@ -167,11 +167,7 @@ def test_losing_a_worker_ends_the_run_naming_it(tmp_path: Path) -> None:
         "300",
     )
     try:
-        deadline = time.monotonic() + 180
-        while time.monotonic() < deadline and running_sim_time(out) < 5.0:
-            assert proc.poll() is None, proc.communicate()
-            time.sleep(0.2)
-        assert running_sim_time(out) >= 5.0, "the run never reached 5 s of sim time"
+        wait_for_sim_time(proc, out, 5.0, 180)
         worker = [pid for pid in pids_with_run_dir(out) if b"--name\0autopilot-1\0" in _cmdline(pid)]
         assert len(worker) == 1, "one process is autopilot-1"
         os.kill(worker[0], signal.SIGKILL)
