@@ -124,3 +124,17 @@ def test_offboard_needs_setpoints_and_falls_back_when_they_stop(gcs: Gcs, flying
     hb = gcs.recv("HEARTBEAT", 4.0, lambda m: _mode(m) is not FlightMode.OFFBOARD)
     assert _mode(hb) is FlightMode.HOLD
     assert flying_rig.ap.state().landed_state == LandedState.IN_AIR
+
+
+def test_a_takeoff_altitude_below_the_minimum_is_raised_to_it_as_px4_does(gcs: Gcs, flying_rig: Rig) -> None:
+    """MAVProxy's ``takeoff 10`` sends 10 m AMSL, below home here: PX4 takes off to home + MIS_TAKEOFF_ALT and
+    says so ("Using minimum takeoff altitude"), it does not refuse."""
+    assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0).result == M.MAV_RESULT_ACCEPTED
+    home = flying_rig.ap.state().home
+    assert home is not None
+    ack = gcs.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, home.alt_amsl_m - 5.0)
+    assert ack.result == M.MAV_RESULT_ACCEPTED
+    text = gcs.recv("STATUSTEXT", 2.0, lambda m: "minimum takeoff" in m.text)
+    assert text.text == "Using minimum takeoff altitude: 2.50 m" and text.severity == M.MAV_SEVERITY_CRITICAL
+    gcs.recv("HEARTBEAT", 20.0, lambda m: _mode(m) is FlightMode.HOLD)
+    assert abs(-flying_rig.sim.pos[2] - 2.5) < 0.5

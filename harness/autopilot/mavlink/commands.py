@@ -77,6 +77,8 @@ class CommandOutcome:
     """Sent after the ACK to the sender (a requested message)."""
     mode_or_arming_changed: bool = False
     replayed: bool = False
+    notice: str = ""
+    """Said as a CRITICAL STATUSTEXT after the ACK of an accepted command (what the vehicle changed in it)."""
 
 
 class CommandService:
@@ -192,13 +194,13 @@ class CommandService:
                 CommandResult.rejected("Takeoff rejected: an AMSL altitude needs a home position (arm first)")
             )
         rel = alt_amsl - home.alt_amsl_m
-        if rel <= 0.0:
-            return CommandOutcome(
-                CommandResult.denied(
-                    f"Takeoff denied: altitude {alt_amsl:.1f} m AMSL is not above home ({home.alt_amsl_m:.1f} m AMSL)"
-                )
-            )
-        return self._mode_cmd(self.api.takeoff(rel))
+        least = float(self.api.get_param("MIS_TAKEOFF_ALT"))
+        if rel >= least:
+            return self._mode_cmd(self.api.takeoff(rel))
+        # below home + MIS_TAKEOFF_ALT (MAVProxy's `takeoff 10` sends 10 m AMSL): PX4's navigator raises it
+        r = self.api.takeoff(least)
+        notice = f"Using minimum takeoff altitude: {least:.2f} m" if r.ok else ""
+        return CommandOutcome(r, mode_or_arming_changed=r.ok, notice=notice)
 
     def _do_set_mode(self, cmd: CommandIn) -> CommandOutcome:
         base, main, sub = cmd.params[0], cmd.params[1], cmd.params[2]

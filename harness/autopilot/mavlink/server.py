@@ -441,6 +441,8 @@ class MavlinkServer:
             self.heartbeat.force()
         if r.result != Result.ACCEPTED and r.reason and not outcome.replayed:
             self._say(Severity.WARNING if r.result != Result.DENIED else Severity.CRITICAL, r.reason, now)
+        elif outcome.notice and not outcome.replayed:
+            self._say(Severity.CRITICAL, outcome.notice, now)
         name = r.result.name
         with self._counter_lock:
             c = self._counters
