@@ -316,9 +316,7 @@ class RrdRecorder:
             except Exception as exc:  # the view must never end a run
                 log.debug("view: autopilot %d not readable: %r", i, exc)
                 continue
-            label = f"vehicle {i} {st.mode.name}{' armed' if st.armed else ''}"
-            if self._changed(("label", i), label):
-                self._labels.append((t_s, i, label))
+            self._label(t_s, i, st.mode.name, st.armed)
         if self._status:
             from harness.autopilot.api import FlightMode
             from harness.wire.protocol import unpack_status
@@ -326,10 +324,13 @@ class RrdRecorder:
             for i, status in sorted(self._status.items()):  # flown in another process: mode from its status
                 armed, _, main, sub = unpack_status(status)
                 mode = FlightMode.from_px4(main, sub)
-                label = f"vehicle {i} {mode.name if mode is not None else f'mode {main}.{sub}'}"
-                label += " armed" if armed else ""
-                if self._changed(("label", i), label):
-                    self._labels.append((t_s, i, label))
+                self._label(t_s, i, mode.name if mode is not None else f"mode {main}.{sub}", armed)
+
+    def _label(self, t_s: float, vehicle: int, mode: str, armed: bool) -> None:
+        """Vehicle ``vehicle``'s label now (name, mode, armed), kept when it changed."""
+        label = f"vehicle {vehicle} {mode}{' armed' if armed else ''}"
+        if self._changed(("label", vehicle), label):
+            self._labels.append((t_s, vehicle, label))
 
     def _send_vehicles(self, b: _Buffer) -> None:
         rr = self._rr
