@@ -11,6 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import FlightMode
 from harness.autopilot.mavlink.telemetry import SENSOR_GPS, SENSOR_GYRO, SENSOR_PREARM
+from harness.autopilot.mavlink.transport import DATAGRAM_MAX, pack_frames
 from harness.autopilot.mavlink.version import CAPABILITIES
 from tests.mavlink.conftest import Gcs, Rig
 
@@ -263,3 +264,32 @@ def test_three_vehicles_each_reach_their_own_script_port() -> None:
             srv.stop()
         for g in scripts:
             g.close()
+
+
+def test_frames_of_one_instant_share_a_datagram_in_order(gcs: Gcs, idle_rig: Rig) -> None:
+    """The telemetry due at one instant reaches a peer as one datagram (one ``sendto`` per destination, as
+    ArduPilot's UDP ports send), under DATAGRAM_MAX, with every frame in sequence: none lost or reordered."""
+    gcs.keep_raw = True
+    gcs.collect(1.5, {"GLOBAL_POSITION_INT"})
+    gcs.keep_raw = False
+    parser = mavlink2.MAVLink(None)
+    per_datagram = []
+    seqs = []
+    for data in gcs.raw:
+        assert len(data) <= DATAGRAM_MAX
+        frames = [m for m in parser.parse_buffer(data) or [] if not isinstance(m, mavlink2.MAVLink_bad_data)]
+        per_datagram.append([m.get_type() for m in frames])
+        seqs += [m.get_seq() for m in frames if m.get_srcSystem() == 1]
+    assert max(len(kinds) for kinds in per_datagram) >= 4, per_datagram[:10]
+    together = [kinds for kinds in per_datagram if "GLOBAL_POSITION_INT" in kinds]
+    assert together and all("ATTITUDE" in kinds for kinds in together), together[:5]
+    assert all((b - a) % 256 == 1 for a, b in itertools.pairwise(seqs)), seqs[:40]
+
+
+def test_pack_frames_fills_datagrams_in_order_and_never_splits_a_frame() -> None:
+    frames = [bytes([i]) * n for i, n in enumerate((600, 500, 300, 280, 1500, 10))]
+    packed = list(pack_frames(frames, limit=1400))
+    assert [n for _, n in packed] == [3, 1, 1, 1]
+    assert [len(d) for d, _ in packed] == [1400, 280, 1500, 10]
+    assert b"".join(d for d, _ in packed) == b"".join(frames)
+    assert list(pack_frames([b"x"])) == [(b"x", 1)]

@@ -44,7 +44,7 @@ from harness.autopilot.mavlink.personality import make_dialect
 from harness.autopilot.mavlink.pilot import PILOT_IDS, handle_pilot
 from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
-from harness.autopilot.mavlink.transport import Address, Link, PortsConfig, UdpLink
+from harness.autopilot.mavlink.transport import Address, Link, PortsConfig, UdpLink, pack_frames
 from harness.core.clock import WALL, Clock
 from harness.core.endpoints import SETTLE_PREFIX
 
@@ -535,32 +535,52 @@ class MavlinkServer:
             self._texts_sent = {t: n for t, n in self._texts_sent.items() if now - n < _TEXT_REPEAT_NS}
         self._texts_sent[text] = now
         self._chunk_id += 1
-        for msg in statustext(self.codec.mav, severity, text, self._chunk_id):
-            self._send(Out(msg), now)
+        self._send_all([Out(msg) for msg in statustext(self.codec.mav, severity, text, self._chunk_id)], now)
 
     def _send_all(self, outs: list[Out], now: int) -> None:
+        """Send what one instant produced: each destination gets its frames, in order, packed into as few
+        datagrams as fit (``transport.pack_frames``), as ArduPilot's UDP ports do; one ``sendto`` per
+        destination instead of one per frame."""
         if not outs:
             return
+        if len(outs) == 1:
+            self._send(outs[0], now)
+            return
         dests: dict[tuple[int, bool], list[Address]] = {}  # a batch at one instant: the same peers for all
+        batches: dict[tuple[int, Address], list[bytes]] = {}
         for o in outs:
-            self._send(o, now, dests)
+            data = self._encode(o)
+            for target in self._targets(o, now, dests):
+                batches.setdefault(target, []).append(data)
+        sent = 0
+        for (k, addr), frames in batches.items():
+            link = self.links[k]
+            for datagram, n in pack_frames(frames):
+                sent += n if link.send(datagram, addr) else 0
+        if sent:
+            self._count("frames_tx", sent)
 
-    def _send(self, out: Out, now: int, dests: dict[tuple[int, bool], list[Address]] | None = None) -> None:
+    def _send(self, out: Out, now: int) -> None:
+        data = self._encode(out)
+        sent = sum(self.links[k].send(data, addr) for k, addr in self._targets(out, now, {}))
+        if sent:
+            self._count("frames_tx", sent)
+
+    def _encode(self, out: Out) -> bytes:
         data = self.codec.encode(out.msg)
         if self._tap is not None:
             self._tap(data)
-        sent = 0
-        if out.to is None:
-            sim_peers = not out.wall_clock
-            for k, link in enumerate(self.links):
-                addrs = None if dests is None else dests.get((k, sim_peers))
-                if addrs is None:
-                    addrs = link.destinations(now, sim_peers=sim_peers)
-                    if dests is not None:
-                        dests[(k, sim_peers)] = addrs
-                for addr in addrs:
-                    sent += link.send(data, addr)
-        else:
-            sent += self.links[out.to.link].send(data, out.to.addr)
-        if sent:
-            self._count("frames_tx", sent)
+        return data
+
+    def _targets(self, out: Out, now: int, dests: dict[tuple[int, bool], list[Address]]) -> list[tuple[int, Address]]:
+        """(link index, address) pairs ``out`` goes to; ``dests`` caches each link's peers for one instant."""
+        if out.to is not None:
+            return [(out.to.link, out.to.addr)]
+        sim_peers = not out.wall_clock
+        targets = []
+        for k, link in enumerate(self.links):
+            addrs = dests.get((k, sim_peers))
+            if addrs is None:
+                addrs = dests[(k, sim_peers)] = link.destinations(now, sim_peers=sim_peers)
+            targets += [(k, addr) for addr in addrs]
+        return targets

@@ -27,6 +27,9 @@ PEER_TIMEOUT_NS = 10_000_000_000
 _FOREVER = 1 << 62
 """Last-heard time of a peer that announced itself as a listener: never forgotten for silence."""
 _RECV_SIZE = 65_535
+DATAGRAM_MAX = 1400
+"""Frames for one destination share a datagram up to this many bytes: under Ethernet's MTU (no IP
+fragments to a GCS on another machine) and under MAVSDK's 2,048-byte receive buffer. A frame is never split."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,3 +212,22 @@ class UdpLink:
 
     def close(self) -> None:
         self.sock.close()
+
+
+def pack_frames(frames: list[bytes], limit: int = DATAGRAM_MAX) -> Iterator[tuple[bytes, int]]:
+    """``frames`` joined, in order, into datagrams of at most ``limit`` bytes (a larger frame goes alone),
+    each with the number of frames in it. MAVLink receivers parse every frame of a datagram (MAVSDK,
+    pymavlink, QGroundControl, MAVProxy; ArduPilot's UDP ports send them so)."""
+    if len(frames) == 1:
+        yield frames[0], 1
+        return
+    batch: list[bytes] = []
+    size = 0
+    for f in frames:
+        if batch and size + len(f) > limit:
+            yield b"".join(batch), len(batch)
+            batch, size = [], 0
+        batch.append(f)
+        size += len(f)
+    if batch:
+        yield b"".join(batch), len(batch)
