@@ -239,7 +239,7 @@ class Launcher:
                 ),
                 wall_clock=self.clock,
             )
-            for i in tree.worker_groups(plan.vehicles, plan.workers)[0]
+            for i in self._groups()[0]
         }
         # each vehicle binds its API port; missions connect out to it, and nothing goes to anyone else's port
         ports = PortsConfig(
@@ -356,8 +356,14 @@ class Launcher:
 
     def _autopilot_groups(self) -> list[range]:
         """The vehicles of each autopilot process (the first share stays in this process when in-process)."""
-        groups = tree.worker_groups(self.plan.vehicles, self.plan.workers)
+        groups = self._groups()
         return groups[1:] if self.plan.autopilots == AutopilotPlacement.IN_PROCESS else groups
+
+    def _groups(self) -> list[range]:
+        """Every process's vehicles; in-process, the first share is this (the root) process's own, smaller
+        by what the root does besides (:data:`tree.ROOT_OVERHEAD`)."""
+        in_process = self.plan.autopilots == AutopilotPlacement.IN_PROCESS
+        return tree.worker_groups(self.plan.vehicles, self.plan.workers, tree.ROOT_OVERHEAD if in_process else 0.0)
 
     def _tcp_port(self, vehicle: int) -> int:
         return self.tcp_port_base + self.plan.tcp_port_step * vehicle

@@ -31,6 +31,12 @@ def test_worker_groups_cover_every_vehicle_once_in_equal_shares() -> None:
     assert [auto_workers(n, cores=2) for n in (1, 2, 3, 4, 10, 100)] == [1, 1, 1, 2, 2, 2]
     assert auto_workers(100, cores=8) == 8 and auto_workers(12, cores=8) == 6
     assert worker_groups(1, AUTO) == [range(0, 1)]
+    # the root's own share is smaller by what it does besides (channel, ledger, recordings)
+    assert worker_groups(10, 2, root_overhead=0.2) == [range(0, 4), range(4, 10)]
+    assert worker_groups(100, 2, root_overhead=0.2) == [range(0, 40), range(40, 100)]
+    assert worker_groups(10, 3, root_overhead=0.2) == [range(0, 2), range(2, 6), range(6, 10)]
+    assert worker_groups(20, 8, root_overhead=0.2)[0] == range(0, 1)  # never an empty root share
+    assert worker_groups(5, 1, root_overhead=0.2) == [range(0, 5)]
     with pytest.raises(ScenarioError, match="--workers must be >= 1"):
         parse_workers("0")
     with pytest.raises(ScenarioError, match="'auto', got 'many'"):
