@@ -100,12 +100,18 @@ def test_attitude_target_conversion() -> None:
     )
 
 
-def test_streams_fall_due_on_the_faster_clock() -> None:
+def test_streams_fall_due_on_sim_time_and_on_the_wall_clock_while_the_sim_stands_still() -> None:
     s = StreamScheduler(defaults={33: 100_000_000})
     assert s.due(0, 0) == [33]
     assert s.due(50_000_000, 50_000_000) == []
-    assert s.due(100_000_000, 60_000_000) == [33]  # wall period passed (sim slow or paused)
-    assert s.due(110_000_000, 160_000_000) == [33]  # sim period passed (sim faster than real time)
+    assert s.due(100_000_000, 60_000_000) == []  # sim slow (x0.2) but moving: sim time alone, as PX4
+    assert s.due(180_000_000, 60_000_000) == []  # stood still for 80 ms < the interval
+    assert s.due(200_000_000, 60_000_000) == [33]  # still for a whole interval (paused): the wall clock
+    assert s.next_due_wall_ns() == 300_000_000
+    assert s.due(300_000_000, 60_000_000) == [33]  # still paused: on the wall clock's grid
+    assert s.due(310_000_000, 160_000_000) == [33]  # sim period passed (sim faster than real time)
+    assert s.next_due_wall_ns() == 410_000_000  # the sim moved at 310 ms
+    assert s.due(400_000_000, 170_000_000) == []
     assert s.set_interval(33, -1) and s.due(10**10, 10**10) == [] and s.interval_us(33) == -1
     assert s.set_interval(105, 20_000) and s.interval_us(105) == 20_000
     assert s.set_interval(33, 0) and s.interval_us(33) == 100_000
