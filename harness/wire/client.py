@@ -58,8 +58,12 @@ class ChannelClient:
         vehicles: tuple[int, ...] = (),
         secret: bytes | None = None,
         timeout_s: float = 10.0,
+        answer_timeout_s: float = 60.0,
     ) -> ChannelClient:
-        """Connect, answer the channel's challenge with our subscription, and wait for WELCOME."""
+        """Connect (within ``timeout_s``), answer the channel's challenge with our subscription, and wait for
+        WELCOME. The channel's answers may take longer (``answer_timeout_s``): a run that starts a hundred
+        processes on two busy cores answers their handshakes between starts, and one that gave up after
+        10 s failed the whole run."""
         addr = parse_address(address) if isinstance(address, str) else address
         if secret is None:
             secret = channel_secret(None, None)  # $HARNESS_SECRET (or $HARNESS_CHANNEL_SECRET), inherited
@@ -67,7 +71,7 @@ class ChannelClient:
             sock = connect(addr, timeout_s)
         except OSError as exc:
             raise SimulationError(f"cannot reach the channel at {addr}: {exc}") from None
-        sock.settimeout(timeout_s)
+        sock.settimeout(max(timeout_s, answer_timeout_s))
         dec = p.FrameDecoder()
         try:
             challenge, _ = _read_one(sock, dec, addr)

@@ -3,9 +3,14 @@ injected clock passes the handshake limit, not when the wall clock does."""
 
 from __future__ import annotations
 
+import threading
+import time
+
 from harness.channel import Channel, ChannelConfig, connect_child_socket
 from harness.core.clock import NS_PER_S, ManualClock
+from harness.core.errors import SimulationError
 from harness.wire import protocol as p
+from harness.wire.client import ChannelClient
 
 
 def test_handshake_deadline_runs_on_the_injected_clock() -> None:
@@ -29,4 +34,40 @@ def test_handshake_deadline_runs_on_the_injected_clock() -> None:
         assert frames[-1].code == p.ErrorCode.STALLED
     finally:
         sock.close()
+        ch.close()
+
+
+def test_a_client_waits_for_a_busy_channel_beyond_the_connect_timeout() -> None:
+    """A run starting a hundred processes answers their handshakes between starts: a client's connect
+    timeout bounds reaching the port, not the channel's answer (``answer_timeout_s``)."""
+    ch = Channel(ChannelConfig())
+    ch.bind()
+    out: dict[str, object] = {}
+
+    def join(answer_timeout_s: float, key: str) -> None:
+        try:
+            out[key] = ChannelClient.connect(
+                ch.address, p.PeerKind.TYPE1, key, timeout_s=0.2, answer_timeout_s=answer_timeout_s
+            )
+        except SimulationError as exc:
+            out[key] = str(exc)
+
+    patient = threading.Thread(target=join, args=(5.0, "patient"))
+    hasty = threading.Thread(target=join, args=(0.3, "hasty"))
+    try:
+        patient.start()
+        hasty.start()
+        time.sleep(0.8)  # the channel is busy: nobody answers for 0.8 s, four times the connect timeout
+        deadline = time.monotonic() + 5.0
+        while patient.is_alive() and time.monotonic() < deadline:
+            ch.pump(0.05)
+        patient.join(1.0)
+        hasty.join(1.0)
+        assert isinstance(out["patient"], ChannelClient)
+        assert isinstance(out["hasty"], str) and "handshake with the channel" in out["hasty"]
+        assert "timed out" in out["hasty"]
+    finally:
+        client = out.get("patient")
+        if isinstance(client, ChannelClient):
+            client.close()
         ch.close()
