@@ -252,13 +252,25 @@ def pack_tick(truth: TruthLike, motors: tuple[float, ...], status: int) -> bytes
 
 def unpack_ticks(data: bytes) -> list[TickReport]:
     """The records :func:`pack_tick` packed, oldest first."""
-    out = []
-    for pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, lat, lon, alt, flags, m0, m1, m2, m3, status in _TICK.iter_unpack(data):
-        truth = TruthReport(
-            (pn, pe, pd), (vn, ve, vd), (qw, qx, qy, qz), lat, lon, alt, bool(flags & 1), bool(flags & 2)
+    # the root unpacks every tick of every vehicle of its autopilot hosts: the tuples are built directly
+    # (``tuple.__new__``), without the Python-level ``__new__`` a NamedTuple call runs
+    new, truth_report, tick_report = tuple.__new__, TruthReport, TickReport
+    return [
+        new(
+            tick_report,
+            (
+                new(
+                    truth_report,
+                    ((pn, pe, pd), (vn, ve, vd), (qw, qx, qy, qz), lat, lon, alt, flags & 1 == 1, flags & 2 == 2),
+                ),
+                (m0, m1, m2, m3),
+                status,
+            ),
         )
-        out.append(TickReport(truth, (m0, m1, m2, m3), status))
-    return out
+        for pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, lat, lon, alt, flags, m0, m1, m2, m3, status in _TICK.iter_unpack(
+            data
+        )
+    ]
 
 
 def last_position(ticks: bytes) -> Vec3:
