@@ -15,6 +15,7 @@ has exited, the duration is reached, a fault fails the run, or on Ctrl-C; every 
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import os
@@ -162,7 +163,14 @@ class Launcher:
                         f"(see the *.stderr files in {plan.out})"
                     )
                 tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
-                status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
+                # What start-up built (modules, JSBSim, autopilots, Rerun) lives to the end of the run: out of the
+                # cycle collector's sight while the loop runs, a full collection walks only what the loop made
+                # (at 100 vehicles one took 60-75 ms of CPU, 11 times in 30 s of sim). No result changes.
+                gc.freeze()
+                try:
+                    status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
+                finally:
+                    gc.unfreeze()
             except KeyboardInterrupt:
                 status, message = RunStatus.INTERRUPTED, "stopped by Ctrl-C"
                 world.interrupted()
