@@ -429,7 +429,8 @@ class Launcher:
                 else:
                     motors[e.vehicle] = row.motors[e.vehicle] = e.motors
                     row.status[e.vehicle] = e.status
-            for done in ledger.complete():
+            done = list(ledger.complete())
+            if done:
                 self._record(done, record_every, summaries, world)
             if phase:
                 ledger.check_through(tick)
@@ -445,38 +446,42 @@ class Launcher:
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
 
     @staticmethod
-    def _record(row: Row, record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:
-        """A tick every vehicle's truth is known at: recorded (every ``record_every``-th), and the summaries."""
-        t_ns = row.t_ns
-        if row.tick % record_every == 0:
-            for v, tr in enumerate(row.truth):
-                world.vehicle(
-                    VehicleSample(
-                        t_ns,
-                        v,
-                        tr.pos_ned_m,
-                        tr.quat,
-                        tr.vel_ned_m_s,
-                        tr.lat_deg,
-                        tr.lon_deg,
-                        tr.alt_amsl_m,
-                        row.motors[v],
-                        tr.on_ground,
-                        tr.crashed,
-                        row.status[v],
+    def _record(rows: list[Row], record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:
+        """Ticks every vehicle's truth is known at, oldest first: recorded (every ``record_every``-th), and the
+        summaries (the highest altitude and a crash at every tick; the rest as of the last one)."""
+        for row in rows:
+            t_ns = row.t_ns
+            if row.tick % record_every == 0:
+                for v, tr in enumerate(row.truth):
+                    world.vehicle(
+                        VehicleSample(
+                            t_ns,
+                            v,
+                            tr.pos_ned_m,
+                            tr.quat,
+                            tr.vel_ned_m_s,
+                            tr.lat_deg,
+                            tr.lon_deg,
+                            tr.alt_amsl_m,
+                            row.motors[v],
+                            tr.on_ground,
+                            tr.crashed,
+                            row.status[v],
+                        )
                     )
-                )
-            world.tick(t_ns, row.tick, row.wall_s, row.tick_us)
-        for s, tr, status in zip(summaries, row.truth, row.status, strict=True):
-            s.armed = p.unpack_status(status)[0]
-            alt = -tr.pos_ned_m[2]
-            if alt > s.max_altitude_m:
-                s.max_altitude_m = alt
+                world.tick(t_ns, row.tick, row.wall_s, row.tick_us)
+            for s, tr in zip(summaries, row.truth, strict=True):
+                alt = -tr.pos_ned_m[2]
+                if alt > s.max_altitude_m:
+                    s.max_altitude_m = alt
+                if tr.crashed and not s.crashed:
+                    s.crashed = True
+                    world.event(t_ns, WorldEvent.CRASH, {"vehicle": s.id})
+        last = rows[-1]
+        for s, tr, status in zip(summaries, last.truth, last.status, strict=True):
+            s.armed = status & p.STATUS_ARMED != 0
             s.final_position_ned_m = tr.pos_ned_m
             s.landed = tr.on_ground
-            if tr.crashed and not s.crashed:
-                s.crashed = True
-                world.event(t_ns, WorldEvent.CRASH, {"vehicle": s.id})
 
     @staticmethod
     def _progress_line(
