@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 from harness.record.sample import VehicleSample
@@ -48,23 +49,27 @@ def _write(path: Path, public: bool, ticks: int, vehicles: int) -> WorldRecorder
     return rec
 
 
-def test_the_fast_path_writes_the_same_file_as_mcaps_add_message(tmp_path: Path) -> None:
-    """Thousands of messages over dozens of 64 KiB chunks and two flushes: byte for byte the file mcap's own
-    ``Writer.add_message`` writes (records, chunk boundaries, message indexes, statistics, summary)."""
-    fast = _write(tmp_path / "fast.mcap", public=False, ticks=1500, vehicles=3)
+@pytest.mark.parametrize(("vehicles", "ticks", "chunks"), [(3, 1500, 40), (60, 300, 80)])
+def test_the_fast_path_writes_the_same_file_as_mcaps_add_message(
+    tmp_path: Path, vehicles: int, ticks: int, chunks: int
+) -> None:
+    """Thousands of messages over dozens of 64 KiB chunks and flushes, a few topics (many messages per chunk
+    and topic) or a swarm's (one or two): byte for byte the file mcap's own ``Writer.add_message`` writes
+    (records, chunk boundaries, message indexes, statistics, summary)."""
+    fast = _write(tmp_path / "fast.mcap", public=False, ticks=ticks, vehicles=vehicles)
     assert fast._add != fast._add_message, "this mcap's writer is not the one the fast path knows"
-    _write(tmp_path / "public.mcap", public=True, ticks=1500, vehicles=3)
+    _write(tmp_path / "public.mcap", public=True, ticks=ticks, vehicles=vehicles)
     data = (tmp_path / "fast.mcap").read_bytes()
-    assert len(data) > 40 * 64 * 1024
     assert data == (tmp_path / "public.mcap").read_bytes()
     with (tmp_path / "fast.mcap").open("rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
-        assert summary.statistics.message_count == 1500 * 3 * 3 + 1500 + 3
-        assert len(summary.chunk_indexes) > 40
-        times = [m.log_time for _, _, m in reader.iter_messages(topics=["/vehicle/2/state"])]
-        assert times == [EPOCH_NS + k * 20_000_000 for k in range(1500)]
+        assert summary.statistics.message_count == ticks * vehicles * 3 + ticks + (ticks + 249) // 500
+        assert len(summary.chunk_indexes) > chunks
+        last = vehicles - 1
+        times = [m.log_time for _, _, m in reader.iter_messages(topics=[f"/vehicle/{last}/state"])]
+        assert times == [EPOCH_NS + k * 20_000_000 for k in range(ticks)]
 
 
 def test_each_topic_holds_the_foxglove_and_harness_json(tmp_path: Path) -> None:
