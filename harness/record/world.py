@@ -12,6 +12,7 @@ summary; a run killed with ``kill -9`` leaves every chunk written so far readabl
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import math
@@ -160,9 +161,14 @@ def _stamp(unix_ns: int) -> _Stamp:
 _MESSAGE = struct.Struct("<BQHIQQ")
 """An MCAP Message record's opcode, length, channel id, sequence, log time and publish time (then the data)."""
 _OP_MESSAGE = 0x05
-_RECORD = struct.Struct("<BQ")
-"""An MCAP record's opcode and length."""
 _OP_MESSAGE_INDEX = 0x07
+
+
+@functools.lru_cache(maxsize=256)
+def _index_record(records: int) -> struct.Struct:
+    """An MCAP MessageIndex record of ``records`` entries: opcode, length, channel id, entries' length, then
+    (log time, offset) per message."""
+    return struct.Struct(f"<BQHI{2 * records}Q")
 
 
 def _appender(w: Writer, chunk_size: int) -> Callable[[int, int, bytes, int], None] | None:
@@ -197,10 +203,12 @@ def _appender(w: Writer, chunk_size: int) -> Callable[[int, int, bytes, int], No
 
         def write(self, stream: Any) -> None:
             records = self.records
-            count = 2 * len(records)
-            body = struct.pack(f"<HI{count}Q", self.channel_id, 8 * count, *[x for record in records for x in record])
-            stream.write(_RECORD.pack(_OP_MESSAGE_INDEX, len(body)))
-            stream.write(body)
+            size = 16 * len(records)
+            stream.write(
+                _index_record(len(records)).pack(
+                    _OP_MESSAGE_INDEX, 6 + size, self.channel_id, size, *[x for record in records for x in record]
+                )
+            )
 
     pack = _MESSAGE.pack
 
