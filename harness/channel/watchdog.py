@@ -57,7 +57,10 @@ class Watchdog:
 
     def expired(self) -> list[int]:
         """The keys whose deadline has passed, earliest first; they stay armed until cleared."""
-        if not self._deadlines:
+        deadlines = self._deadlines
+        if not deadlines:
             return []
         now = self._clock.now_ns()
-        return [k for k, d in sorted(self._deadlines.items(), key=lambda kv: kv[1]) if now >= d]
+        if now < min(deadlines.values()):  # the usual answer, asked after every wait: without sorting them
+            return []
+        return [k for k, d in sorted(deadlines.items(), key=lambda kv: kv[1]) if now >= d]

@@ -32,7 +32,7 @@ class Row:
     missing: int = field(init=False)
 
     def __post_init__(self) -> None:
-        self.missing = sum(1 for t in self.truth if t is None)
+        self.missing = self.truth.count(None)
 
 
 class Ledger:
@@ -45,14 +45,21 @@ class Ledger:
     def open(self, row: Row) -> None:
         if len(row.truth) != self.n:
             raise ValueError(f"a row of {len(row.truth)} vehicles, the run has {self.n}")
-        self._rows.append(row)
+        rows = self._rows
+        if rows and row.tick != rows[-1].tick + 1:
+            raise ValueError(f"tick {row.tick} opened after tick {rows[-1].tick}: the rows are consecutive ticks")
+        rows.append(row)
 
     def reported(self, vehicle: int, tick: int, reports: Sequence[p.TickReport]) -> None:
         """A host's reports for ``vehicle``: the ticks up to ``tick``, the last at ``tick``."""
+        rows = self._rows
         first = tick - len(reports) + 1
-        rows = {r.tick: r for r in self._rows if first <= r.tick <= tick}
+        base = rows[0].tick if rows else first  # the rows are consecutive ticks: row k is at k - base
         for k, rep in enumerate(reports, start=first):
-            row = rows.get(k)
+            i = k - base
+            row = rows[i] if 0 <= i < len(rows) else None
+            if row is not None and row.tick != k:
+                row = None
             if row is None or row.truth[vehicle] is not None:
                 raise SimulationError(
                     f"the autopilot host of vehicle {vehicle} reported tick {k}, which "

@@ -252,13 +252,25 @@ def pack_tick(truth: TruthLike, motors: tuple[float, ...], status: int) -> bytes
 
 def unpack_ticks(data: bytes) -> list[TickReport]:
     """The records :func:`pack_tick` packed, oldest first."""
-    out = []
-    for pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, lat, lon, alt, flags, m0, m1, m2, m3, status in _TICK.iter_unpack(data):
-        truth = TruthReport(
-            (pn, pe, pd), (vn, ve, vd), (qw, qx, qy, qz), lat, lon, alt, bool(flags & 1), bool(flags & 2)
+    # the root unpacks every tick of every vehicle of its autopilot hosts: the tuples are built directly
+    # (``tuple.__new__``), without the Python-level ``__new__`` a NamedTuple call runs
+    new, truth_report, tick_report = tuple.__new__, TruthReport, TickReport
+    return [
+        new(
+            tick_report,
+            (
+                new(
+                    truth_report,
+                    ((pn, pe, pd), (vn, ve, vd), (qw, qx, qy, qz), lat, lon, alt, flags & 1 == 1, flags & 2 == 2),
+                ),
+                (m0, m1, m2, m3),
+                status,
+            ),
         )
-        out.append(TickReport(truth, (m0, m1, m2, m3), status))
-    return out
+        for pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, lat, lon, alt, flags, m0, m1, m2, m3, status in _TICK.iter_unpack(
+            data
+        )
+    ]
 
 
 def last_position(ticks: bytes) -> Vec3:
@@ -267,14 +279,23 @@ def last_position(ticks: bytes) -> Vec3:
     return (x, y, z)
 
 
+STATUS_ARMED: Final = 1
+"""The armed bit of an END-TICK-AC ``status`` (``status & STATUS_ARMED``: what the root reads at every tick)."""
+
+
 def pack_status(armed: bool, landed_state: int, main_mode: int, sub_mode: int) -> int:
     """END-TICK-AC ``status``: bit 0 armed, bits 1-3 MAV_LANDED_STATE, 8-15 PX4 main mode, 16-23 sub mode."""
-    return (1 if armed else 0) | ((landed_state & 0x7) << 1) | ((main_mode & 0xFF) << 8) | ((sub_mode & 0xFF) << 16)
+    return (
+        (STATUS_ARMED if armed else 0)
+        | ((landed_state & 0x7) << 1)
+        | ((main_mode & 0xFF) << 8)
+        | ((sub_mode & 0xFF) << 16)
+    )
 
 
 def unpack_status(status: int) -> tuple[bool, int, int, int]:
     """(armed, landed_state, main_mode, sub_mode) from an END-TICK-AC ``status``."""
-    return bool(status & 1), (status >> 1) & 0x7, (status >> 8) & 0xFF, (status >> 16) & 0xFF
+    return status & STATUS_ARMED != 0, (status >> 1) & 0x7, (status >> 8) & 0xFF, (status >> 16) & 0xFF
 
 
 class BeginTick0(_Msg, tag="BT0", frozen=True):

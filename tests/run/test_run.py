@@ -89,11 +89,16 @@ def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path: Path) -> None
     assert simulated >= 1.0, "the run did not start simulating within 120 s"
     children = pids_with_run_dir(out)
     assert len(children) >= 2  # the two missions (and their mavsdk_server; the autopilots run in-process)
+    # the run's own processes reach the root channel through a unix socket (no --accept, no remote vehicles)
+    env = dict(v.split(b"=", 1) for v in Path(f"/proc/{children[0]}/environ").read_bytes().split(b"\0") if b"=" in v)
+    address = env[b"HARNESS_CHANNEL"].decode()
+    assert address.startswith("unix://") and Path(address.removeprefix("unix://")).exists()
     start = time.monotonic()
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=10)
     assert time.monotonic() - start < 5.0
     assert not pids_with_run_dir(out), "no orphans"
+    assert not Path(address.removeprefix("unix://")).exists(), "the channel's socket file is removed"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["sim_time_s"] > 0
     assert proc.returncode == 130
