@@ -551,7 +551,7 @@ class Channel:
                 with contextlib.suppress(OSError):
                     s.close()
         self._sel.close()
-        if self._bound is not None and self._bound.scheme == "unix":
+        if self._bound is not None and self._bound.scheme == "unix" and not self._bound.is_abstract:
             with contextlib.suppress(OSError):
                 os.unlink(self._bound.path)
 

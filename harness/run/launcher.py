@@ -512,12 +512,16 @@ def _root_address(plan: LaunchPlan) -> str:
     ``harness join`` is told it); else a unix socket in the temp directory, which only this run's processes
     use. A frame through a unix socket costs the kernel half of what it costs through TCP over loopback
     (``bench_channel.py --case tcp,100,100,1 --case unix,100,100,1``: 4.4 and 2.4 ms of the channel process's
-    CPU per tick with 100 missions); the channel removes the file when it closes."""
+    CPU per tick with 100 missions). On Linux the socket is abstract (no file, nothing left after ``kill -9``);
+    elsewhere a file the channel removes when it closes."""
     if plan.listen:
         return plan.listen
     if plan.remote_vehicles or not hasattr(socket, "AF_UNIX"):
         return ChannelConfig.address
-    return f"unix://{Path(tempfile.gettempdir()) / f'harness-run-{os.getpid()}-{secrets.token_hex(4)}.sock'}"
+    name = f"harness-run-{os.getpid()}-{secrets.token_hex(4)}"
+    if sys.platform == "linux":
+        return f"unix://@{name}"
+    return f"unix://{Path(tempfile.gettempdir()) / f'{name}.sock'}"
 
 
 def _mission_argv(address: str, vehicle: int, m: MissionPlan, name: str | None = None) -> list[str]:

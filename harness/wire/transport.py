@@ -1,4 +1,5 @@
-"""Channel addresses and sockets: ``tcp://HOST:PORT`` or ``unix:///path/to.sock``.
+"""Channel addresses and sockets: ``tcp://HOST:PORT``, ``unix:///path/to.sock`` or, on Linux, ``unix://@name``
+(an abstract unix socket: no file, gone with the last process holding it, also after ``kill -9``).
 
 Thin adapter: parses addresses, opens listening and connecting sockets with the options lockstep
 traffic needs (TCP_NODELAY: every tick is a burst of small frames that must not wait for Nagle).
@@ -26,6 +27,11 @@ class Address:
             return f"unix://{self.path}"
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"tcp://{host}:{self.port}"
+
+    @property
+    def is_abstract(self) -> bool:
+        """A unix socket in Linux's abstract namespace (``unix://@name``): no file to remove."""
+        return self.scheme == "unix" and self.path.startswith("@")
 
     @property
     def is_loopback(self) -> bool:
@@ -60,6 +66,11 @@ def parse_address(text: str) -> Address:
     return Address("tcp", host=host, port=port)
 
 
+def _unix_name(addr: Address) -> str:
+    """The name to bind or connect: ``@name`` is Linux's abstract namespace (a leading NUL byte)."""
+    return "\0" + addr.path[1:] if addr.is_abstract else addr.path
+
+
 def _tune(sock: socket.socket) -> None:
     if sock.family in (socket.AF_INET, socket.AF_INET6):
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -68,10 +79,10 @@ def _tune(sock: socket.socket) -> None:
 def listen(addr: Address, backlog: int = 128) -> tuple[socket.socket, Address]:
     """A listening socket for ``addr``; returns it with the address actually bound (port 0 resolved)."""
     if addr.scheme == "unix":
-        if os.path.exists(addr.path):
+        if not addr.is_abstract and os.path.exists(addr.path):
             os.unlink(addr.path)
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sock.bind(addr.path)
+        sock.bind(_unix_name(addr))
         sock.listen(backlog)
         return sock, addr
     family = socket.AF_INET6 if ":" in addr.host else socket.AF_INET
@@ -88,7 +99,7 @@ def connect(addr: Address, timeout_s: float = 10.0) -> socket.socket:
     if addr.scheme == "unix":
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         sock.settimeout(timeout_s)
-        sock.connect(addr.path)
+        sock.connect(_unix_name(addr))
     else:
         sock = socket.create_connection((addr.host, addr.port), timeout=timeout_s)
     sock.settimeout(None)

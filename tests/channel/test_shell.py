@@ -3,8 +3,13 @@ injected clock passes the handshake limit, not when the wall clock does."""
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
 import time
+from pathlib import Path
+
+import pytest
 
 from harness.channel import Channel, ChannelConfig, connect_child_socket
 from harness.core.clock import NS_PER_S, ManualClock
@@ -71,3 +76,27 @@ def test_a_client_waits_for_a_busy_channel_beyond_the_connect_timeout() -> None:
         if isinstance(client, ChannelClient):
             client.close()
         ch.close()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="Linux's abstract unix namespace")
+def test_an_abstract_unix_address_serves_and_leaves_no_file(tmp_path: Path) -> None:
+    name = f"@harness-test-{os.getpid()}"
+    ch = Channel(ChannelConfig(address=f"unix://{name}"))
+    ch.bind()
+    clients: list[ChannelClient] = []
+    joiner = threading.Thread(
+        target=lambda: clients.append(ChannelClient.connect(ch.address, p.PeerKind.TYPE1, "t1", timeout_s=2.0))
+    )
+    try:
+        joiner.start()
+        deadline = time.monotonic() + 5.0
+        while not clients and time.monotonic() < deadline:
+            ch.pump(0.05)
+        joiner.join(1.0)
+        assert ch.address == f"unix://{name}" and len(ch.subscribers()) == 1 and clients
+        assert name in Path("/proc/net/unix").read_text()
+        clients[0].close()
+    finally:
+        ch.close()
+    assert not Path(name).exists() and not any(tmp_path.iterdir())
+    assert name not in Path("/proc/net/unix").read_text()

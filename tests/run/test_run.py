@@ -92,13 +92,14 @@ def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path: Path) -> None
     # the run's own processes reach the root channel through a unix socket (no --accept, no remote vehicles)
     env = dict(v.split(b"=", 1) for v in Path(f"/proc/{children[0]}/environ").read_bytes().split(b"\0") if b"=" in v)
     address = env[b"HARNESS_CHANNEL"].decode()
-    assert address.startswith("unix://") and Path(address.removeprefix("unix://")).exists()
+    # ... in Linux's abstract namespace: no file, so nothing is left behind even by kill -9
+    assert address.startswith("unix://@") and address.removeprefix("unix://") in _listening_unix_sockets()
     start = time.monotonic()
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=10)
     assert time.monotonic() - start < 5.0
     assert not pids_with_run_dir(out), "no orphans"
-    assert not Path(address.removeprefix("unix://")).exists(), "the channel's socket file is removed"
+    assert address.removeprefix("unix://") not in _listening_unix_sockets(), "the channel's socket is closed"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["sim_time_s"] > 0
     assert proc.returncode == 130
@@ -111,3 +112,9 @@ def test_bad_mission_path_is_one_line(tmp_path: Path) -> None:
     _, stderr = proc.communicate(timeout=30)
     assert proc.returncode == 2
     assert stderr.strip().count("\n") == 0 and "nope.py" in stderr and "does not exist" in stderr
+
+
+def _listening_unix_sockets() -> set[str]:
+    """The names of the unix sockets bound on this machine (abstract ones start with ``@``)."""
+    lines = Path("/proc/net/unix").read_text().splitlines()[1:]
+    return {fields[7] for fields in (line.split() for line in lines) if len(fields) >= 8}
