@@ -8,14 +8,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from harness.autopilot.control import (
-    QUAD_X,
     AttitudeControl,
     PositionControl,
     TrajectorySetpoint,
-    mix_quad_x,
     thrust_to_attitude,
 )
 from harness.autopilot.mathutil import quat_to_euler
+from harness.autopilot.mixer import QUAD_X, mix_quad_x
 from harness.autopilot.params import Params
 from harness.core.geo import quat_from_euler
 
