@@ -1,7 +1,9 @@
 """Sensor models: IMU, magnetometer, barometer and GPS with rates, noise, bias, drift and latency.
 
 Pure per-vehicle state fed with ground truth every tick; all randomness from the vehicle's own seeded
-``numpy.random.Generator``, drawn in a fixed order, so the same seed gives bit-identical streams.
+``numpy.random.Generator``, drawn in a fixed order, so the same seed gives bit-identical streams. The IMU,
+sampled every tick, is one call of the numba-compiled ``imu_sample`` (``harness.core.jit``); the slower
+sensors are plain float math.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 
 from harness.core.errors import ScenarioError
 from harness.core.geo import EARTH_RADIUS_M, Quat, Vec3
+from harness.core.jit import kernel
 from harness.fdm.frame import Baro, Gps, Imu, Mag
 
 
@@ -118,6 +121,41 @@ def rotate_ned_to_body(q: Quat, v: Vec3) -> Vec3:
     return (r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz)
 
 
+@kernel
+def imu_sample(
+    z: np.ndarray,
+    at: int,
+    s: np.ndarray,
+    c: np.ndarray,
+    sf0: float,
+    sf1: float,
+    sf2: float,
+    w0: float,
+    w1: float,
+    w2: float,
+) -> tuple[float, float, float, float, float, float]:
+    """One IMU sample: the biases in ``s`` (accelerometer 3, gyro 3, barometer) take a random-walk step and
+    the readings get them plus white noise. ``z[at:at + 12]``: the IMU's standard normal draws, ``z[at + 12]``
+    the barometer drift's; ``c``: walk per tick (accelerometer, gyro), noise σ (accelerometer, gyro), baro walk.
+    Returns (specific force (3), rates (3)) in body axes."""
+    wa, wg, an, gn = c[0], c[1], c[2], c[3]
+    ab0 = s[0] = s[0] + wa * z[at]
+    gb0 = s[3] = s[3] + wg * z[at + 3]
+    ab1 = s[1] = s[1] + wa * z[at + 1]
+    gb1 = s[4] = s[4] + wg * z[at + 4]
+    ab2 = s[2] = s[2] + wa * z[at + 2]
+    gb2 = s[5] = s[5] + wg * z[at + 5]
+    s[6] += c[4] * z[at + 12]
+    return (
+        sf0 + ab0 + an * z[at + 6],
+        sf1 + ab1 + an * z[at + 7],
+        sf2 + ab2 + an * z[at + 8],
+        w0 + gb0 + gn * z[at + 9],
+        w1 + gb1 + gn * z[at + 10],
+        w2 + gb2 + gn * z[at + 11],
+    )
+
+
 class SensorModel:
     """The sensors of one vehicle. Call :meth:`sample` once per tick with the truth of that tick."""
 
@@ -127,12 +165,16 @@ class SensorModel:
         self.tick_ns = tick_ns
         self.mag_ned = mag_ned_gauss
         self._noise: list[float] = []
+        self._noise_arr = np.zeros(0)
+        """The current block of standard normal draws (``_noise`` is the same as a list)."""
         self._noise_at = 0
         on = 1.0 if cfg.noise else 0.0
         self._on = on
-        self.accel_bias = [on * b for b in cfg.accel_bias_m_s2]
-        self.gyro_bias = [on * b for b in cfg.gyro_bias_rad_s]
-        self.baro_bias_m = on * cfg.baro_bias_m
+        self._s = np.array([*(on * b for b in cfg.accel_bias_m_s2), *(on * b for b in cfg.gyro_bias_rad_s), 0.0])
+        """The drifting biases, mutated by ``imu_sample``: accelerometer (3), gyro (3), barometer."""
+        self._s[6] = on * cfg.baro_bias_m
+        self.accel_bias = self._s[0:3]
+        self.gyro_bias = self._s[3:6]
         self._gps_err = [0.0, 0.0, 0.0]
         self._history: collections.deque[tuple[int, float, float, float, Vec3]] = collections.deque()
         """(t_ns, lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s) of the last ticks, as long as the GPS latency."""
@@ -152,6 +194,7 @@ class SensorModel:
         self._gps_b = math.sqrt(1.0 - self._gps_a**2) * on
         # per-tick constants (the same products the formulas below would form every tick)
         self._an, self._gn = cfg.accel_noise_m_s2 * on, cfg.gyro_noise_rad_s * on
+        self._imu_c = np.array([self._walk_accel, self._walk_gyro, self._an, self._gn, self._walk_baro])
         self._mn = cfg.mag_noise_gauss * on
         self._mb = (on * cfg.mag_bias_gauss[0], on * cfg.mag_bias_gauss[1], on * cfg.mag_bias_gauss[2])
         self._bn = cfg.baro_noise_m * on
@@ -159,12 +202,18 @@ class SensorModel:
         self._eph = max(0.5, cfg.gps_noise_m * 2.0)
         self._epv = max(0.8, cfg.gps_alt_noise_m * 2.0)
 
+    @property
+    def baro_bias_m(self) -> float:
+        """The barometer's bias now (turn-on bias plus drift), m."""
+        return float(self._s[6])
+
     def _normals(self, n: int) -> list[float]:
         """The next ``n`` standard normal draws of this vehicle's stream. Drawn from the generator in blocks
         (one numpy call per 4096 values instead of several per tick): same seed, same sequence."""
         at = self._noise_at
         if at + n > len(self._noise):
-            self._noise = self.rng.standard_normal(4096).tolist()
+            self._noise_arr = self.rng.standard_normal(4096)
+            self._noise = self._noise_arr.tolist()
             at = 0
         self._noise_at = at + n
         return self._noise[at : at + n]
@@ -182,31 +231,14 @@ class SensorModel:
     ) -> tuple[Imu, Mag | None, Baro | None, Gps | None]:
         # the draws of a tick, in this order: 12 (IMU), 1 (baro drift), then 3 (mag), 1 (baro), 6 (GPS) when
         # those sample; a fixed number per sensor keeps the streams aligned
-        noise, at = self._noise, self._noise_at
-        if at + 13 > len(noise):
-            z = self._normals(12)
-            zb = self._normals(1)[0]
+        at = self._noise_at
+        if at + 13 > len(self._noise):
+            z, at = np.array([*self._normals(12), *self._normals(1)]), 0
         else:
-            z = noise[at : at + 12]
-            zb = noise[at + 12]
+            z = self._noise_arr
             self._noise_at = at + 13
-        ab, gb = self.accel_bias, self.gyro_bias
-        wa, wg = self._walk_accel, self._walk_gyro
-        z0, z1, z2, z3, z4, z5, z6, z7, z8, z9, z10, z11 = z
-        ab0 = ab[0] = ab[0] + wa * z0
-        gb0 = gb[0] = gb[0] + wg * z3
-        ab1 = ab[1] = ab[1] + wa * z1
-        gb1 = gb[1] = gb[1] + wg * z4
-        ab2 = ab[2] = ab[2] + wa * z2
-        gb2 = gb[2] = gb[2] + wg * z5
-        an, gn = self._an, self._gn
-        sf0, sf1, sf2 = specific_force_body_m_s2
-        w0, w1, w2 = rates_body_rad_s
-        imu = Imu(
-            (sf0 + ab0 + an * z6, sf1 + ab1 + an * z7, sf2 + ab2 + an * z8),
-            (w0 + gb0 + gn * z9, w1 + gb1 + gn * z10, w2 + gb2 + gn * z11),
-        )
-        self.baro_bias_m += self._walk_baro * zb
+        a0, a1, a2, g0, g1, g2 = imu_sample(z, at, self._s, self._imu_c, *specific_force_body_m_s2, *rates_body_rad_s)
+        imu = Imu((a0, a1, a2), (g0, g1, g2))
         mag = baro = gps = None
         if t_ns >= self._next_mag:
             self._next_mag += self._mag_period
