@@ -158,6 +158,20 @@ def position_step(
     return (vx, vy, vz, tx, ty, tz)
 
 
+@kernel
+def change_hover(s: np.ndarray, hover: float) -> None:
+    """Hover thrust ``hover`` in the position state ``s``, the vertical integrator moved so that the thrust
+    output stays continuous (as PX4's updateHoverThrust)."""
+    old = s[_HOVER]
+    if hover <= 0.0 or hover == old:
+        return
+    a = s[_ACC_Z]
+    a_new = (a - G_M_S2) * old / hover + G_M_S2
+    s[_IZ] += a_new - a
+    s[_ACC_Z] = a_new
+    s[_HOVER] = hover
+
+
 class PositionControl:
     """Position P and velocity PID; output a thrust vector in NED (normalised thrust units)."""
 
@@ -236,15 +250,7 @@ class PositionControl:
 
     def set_hover(self, hover: float) -> None:
         """Change the hover thrust keeping the thrust output continuous (as PX4's updateHoverThrust)."""
-        s = self._s
-        old = float(s[_HOVER])
-        if hover <= 0.0 or hover == old:
-            return
-        a = float(s[_ACC_Z])
-        a_new = (a - G_M_S2) * old / hover + G_M_S2
-        s[_IZ] += a_new - a
-        s[_ACC_Z] = a_new
-        s[_HOVER] = hover
+        change_hover(self._s, hover)
 
     def update(
         self,

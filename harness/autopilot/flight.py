@@ -69,6 +69,8 @@ class FlightCore:
     def _load(self) -> None:
         p = self.params
         self._ver = p.version
+        self.att_ctl.refresh()
+        self.rate_ctl.refresh()
         self._idle = p["MPC_THR_MIN"] * 0.5
         if p["MPC_THR_HOVER"] != self._hover_param:
             self._hover_param = p["MPC_THR_HOVER"]
@@ -191,9 +193,7 @@ class FlightCore:
     ) -> tuple[float, float, float, float]:
         """The per-tick cascade (``control.inner_loop``): attitude setpoint ``qd`` (if ``use_att``) and/or body
         rates → rate PID → mixer → thrust model, in one compiled call."""
-        att, rate, est = self.att_ctl, self.rate_ctl, self.est
-        att.refresh()
-        rate.refresh()
+        att, rate, est = self.att_ctl, self.rate_ctl, self.est  # (their gains refreshed by _load)
         self.collective = thrust
         return inner_loop(
             att.gains, rate.gains, rate.state, use_att, *est.q, *qd, yaw_ff, add_rates, *body_rates, *est.rates,
