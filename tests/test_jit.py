@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PROBE = """
 import sys
 from harness.autopilot.control import thrust_to_attitude
-from harness.autopilot.mixer import mix_quad_x
+from harness.autopilot.inner import mix_quad_x
 q, n = thrust_to_attitude((0.1, -0.05, -0.5), 0.3)
 m, sp, sn = mix_quad_x(0.6, 0.0, 0.5, 0.5, 0.05)
 print([x.hex() for x in (*q, n, *m)], sp, sn)

@@ -1,14 +1,13 @@
-"""The multicopter control cascade, modelled on PX4's controllers, compiled with numba.
+"""The multicopter control cascade's outer part, modelled on PX4's controllers, compiled with numba.
 
-position P → velocity PID (+ acceleration feed-forward) → thrust vector → attitude setpoint (quaternion)
-→ attitude P (tilt before yaw, ``MC_YAW_WEIGHT``) → body-rate PID → quad-X mixer (yaw gives way first).
+position P → velocity PID (+ acceleration feed-forward) → thrust vector → attitude setpoint (quaternion);
+the inner loop (attitude P → body-rate PID → quad-X mixer) is ``inner.py``.
 
-Gains are the PX4 parameters (``MPC_*``, ``MC_*``); each controller copies them into a float64 array when the
-parameter registry's version changes. The equations are the ``@kernel`` functions below (numba, see
-``harness.core.jit``): each stage is one compiled call over floats, the controller's gains array and its
-state array (integrators, previous rates), which the kernel mutates in place. ``inner_loop`` is the whole
-per-tick part (attitude → rates → mixer → thrust model) in one call; the classes are the Python interface
-the flight core and the tests use.
+Gains are the PX4 parameters (``MPC_*``); the controller copies them into a float64 array when the parameter
+registry's version changes. The equations are the ``@kernel`` functions below (numba, see
+``harness.core.jit``): each stage is one compiled call over floats, the gains array and the controller's
+state array (integrators, hover thrust), which the kernel mutates in place; ``PositionControl`` is the
+Python interface the flight core and the tests use.
 """
 
 from __future__ import annotations
@@ -18,10 +17,9 @@ import math
 import numpy as np
 
 from harness.autopilot.mathutil import G_M_S2
-from harness.autopilot.mixer import Motors, mix, thrust_model
 from harness.autopilot.params import Params
 from harness.core.geo import Quat
-from harness.core.jit import kernel
+from harness.core.jit import compiled, kernel
 
 NAN = math.nan
 
@@ -172,6 +170,10 @@ def change_hover(s: np.ndarray, hover: float) -> None:
     s[_HOVER] = hover
 
 
+_position_step = compiled(position_step)
+_change_hover = compiled(change_hover)
+
+
 class PositionControl:
     """Position P and velocity PID; output a thrust vector in NED (normalised thrust units)."""
 
@@ -250,7 +252,7 @@ class PositionControl:
 
     def set_hover(self, hover: float) -> None:
         """Change the hover thrust keeping the thrust output continuous (as PX4's updateHoverThrust)."""
-        change_hover(self._s, hover)
+        _change_hover(self._s, hover)
 
     def update(
         self,
@@ -261,7 +263,7 @@ class PositionControl:
     ) -> tuple[float, float, float]:
         if self.params.version != self._ver:
             self._load()
-        vx, vy, vz, tx, ty, tz = position_step(
+        vx, vy, vz, tx, ty, tz = _position_step(
             self._g, self._s, sp.px, sp.py, sp.pz, sp.vx, sp.vy, sp.vz, sp.ax, sp.ay, sp.az, *pos, *vel, dt
         )
         self.vel_sp = (vx, vy, vz)
@@ -313,254 +315,3 @@ def thrust_to_attitude(thr: tuple[float, float, float], yaw: float) -> tuple[Qua
     """PX4's bodyzToAttitude: the attitude whose body z opposes the thrust vector with the given yaw."""
     qw, qx, qy, qz, n = thrust_attitude(thr[0], thr[1], thr[2], yaw)
     return (qw, qx, qy, qz), n
-
-
-# ---- attitude control ----
-# gains g: MC_ROLL_P, MC_PITCH_P, MC_YAW_P, MC_YAW_WEIGHT, max roll, pitch, yaw rate (rad/s)
-
-
-@kernel
-def attitude_rates(
-    g: np.ndarray,
-    w: float,
-    x: float,
-    y: float,
-    z: float,
-    dw: float,
-    dx: float,
-    dy: float,
-    dz: float,
-    yaw_rate_ff: float,
-) -> tuple[float, float, float]:
-    """Quaternion attitude P: body-rate setpoint turning attitude (w, x, y, z) towards (dw, dx, dy, dz)."""
-    # body z axes in world (third column of R)
-    ex, ey, ez = 2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)
-    fx, fy, fz = 2 * (dx * dz + dw * dy), 2 * (dy * dz - dw * dx), 1 - 2 * (dx * dx + dy * dy)
-    # shortest rotation e_z -> e_z_d, applied to q: reduced attitude setpoint
-    d = ex * fx + ey * fy + ez * fz
-    cx, cy, cz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
-    if d > -0.9999:
-        rw = 1.0 + d
-        rn = math.sqrt(rw * rw + cx * cx + cy * cy + cz * cz)
-        rw, cx, cy, cz = rw / rn, cx / rn, cy / rn, cz / rn
-        # qr = (rw, c) * q
-        qrw = rw * w - cx * x - cy * y - cz * z
-        qrx = rw * x + cx * w + cy * z - cz * y
-        qry = rw * y - cx * z + cy * w + cz * x
-        qrz = rw * z + cx * y - cy * x + cz * w
-    else:
-        qrw, qrx, qry, qrz = dw, dx, dy, dz
-    # mix: qmix = qr^-1 * qd, keep yaw_w of its yaw part
-    mw = qrw * dw + qrx * dx + qry * dy + qrz * dz
-    mz = qrw * dz - qrx * dy + qry * dx - qrz * dw
-    if mw < 0.0:
-        mw, mz = -mw, -mz
-    mw = 1.0 if mw > 1.0 else mw
-    mz = -1.0 if mz < -1.0 else (1.0 if mz > 1.0 else mz)
-    a = g[3]
-    pw, pz = math.cos(a * math.acos(mw)), math.sin(a * math.asin(mz))
-    # qd' = qr * (pw, 0, 0, pz)
-    sw = qrw * pw - qrz * pz
-    sx = qrx * pw + qry * pz
-    sy = qry * pw - qrx * pz
-    sz = qrz * pw + qrw * pz
-    # error qe = q^-1 * qd'
-    ew = w * sw + x * sx + y * sy + z * sz
-    erx = w * sx - x * sw - y * sz + z * sy
-    ery = w * sy + x * sz - y * sw - z * sx
-    erz = w * sz - x * sy + y * sx - z * sw
-    s = 2.0 if ew >= 0.0 else -2.0
-    rr = g[0] * s * erx
-    rp = g[1] * s * ery
-    ry = g[2] * s * erz / (a if a > 1e-3 else 1e-3)
-    if yaw_rate_ff != 0.0:
-        # feed-forward about the world z axis, expressed in body axes
-        rr += yaw_rate_ff * ex
-        rp += yaw_rate_ff * ey
-        ry += yaw_rate_ff * ez
-    mr, mp, my = g[4], g[5], g[6]
-    rr = -mr if rr < -mr else (mr if rr > mr else rr)
-    rp = -mp if rp < -mp else (mp if rp > mp else rp)
-    ry = -my if ry < -my else (my if ry > my else ry)
-    return (rr, rp, ry)
-
-
-class AttitudeControl:
-    """Quaternion attitude P (PX4): tilt is corrected with full authority, yaw with ``MC_YAW_WEIGHT``."""
-
-    def __init__(self, params: Params) -> None:
-        self.params = params
-        self._ver = -1
-        self.gains = np.zeros(7)
-        """MC_ROLL_P, MC_PITCH_P, MC_YAW_P, MC_YAW_WEIGHT, the roll, pitch and yaw rate limits (rad/s)."""
-        self._load()
-
-    def _load(self) -> None:
-        p = self.params
-        self._ver = p.version
-        self.gains[:] = (
-            p["MC_ROLL_P"],
-            p["MC_PITCH_P"],
-            p["MC_YAW_P"],
-            p["MC_YAW_WEIGHT"],
-            math.radians(p["MC_ROLLRATE_MAX"]),
-            math.radians(p["MC_PITCHRATE_MAX"]),
-            math.radians(p["MC_YAWRATE_MAX"]),
-        )
-
-    def refresh(self) -> None:
-        """Re-read the gains if a parameter changed."""
-        if self.params.version != self._ver:
-            self._load()
-
-    def update(self, q: Quat, qd: Quat, yaw_rate_ff: float = 0.0) -> tuple[float, float, float]:
-        self.refresh()
-        return attitude_rates(self.gains, *q, *qd, yaw_rate_ff)
-
-
-# ---- rate control ----
-# gains g: P (roll, pitch, yaw), I (3), D (3), integrator limits (3)
-# state s: integrators (3), previous rates (3), mixer saturation flags of the last tick: positive (3), negative (3)
-
-
-@kernel
-def rate_pid(
-    g: np.ndarray,
-    s: np.ndarray,
-    sp0: float,
-    sp1: float,
-    sp2: float,
-    p0: float,
-    p1: float,
-    p2: float,
-    dt: float,
-    sat_pos0: bool,
-    sat_pos1: bool,
-    sat_pos2: bool,
-    sat_neg0: bool,
-    sat_neg1: bool,
-    sat_neg2: bool,
-    integrate: bool,
-) -> tuple[float, float, float]:
-    """Body-rate PID (D on the measurement); integrators and previous rates in ``s`` updated."""
-    e0, e1, e2 = sp0 - p0, sp1 - p1, sp2 - p2
-    inv = 1.0 / dt if dt > 0.0 else 0.0
-    out = (
-        g[0] * e0 + s[0] - g[6] * (p0 - s[3]) * inv,
-        g[1] * e1 + s[1] - g[7] * (p1 - s[4]) * inv,
-        g[2] * e2 + s[2] - g[8] * (p2 - s[5]) * inv,
-    )
-    if integrate:
-        if not ((sat_pos0 and e0 > 0.0) or (sat_neg0 and e0 < 0.0)):
-            v, lim = s[0] + g[3] * e0 * dt, g[9]
-            s[0] = -lim if v < -lim else (lim if v > lim else v)
-        if not ((sat_pos1 and e1 > 0.0) or (sat_neg1 and e1 < 0.0)):
-            v, lim = s[1] + g[4] * e1 * dt, g[10]
-            s[1] = -lim if v < -lim else (lim if v > lim else v)
-        if not ((sat_pos2 and e2 > 0.0) or (sat_neg2 and e2 < 0.0)):
-            v, lim = s[2] + g[5] * e2 * dt, g[11]
-            s[2] = -lim if v < -lim else (lim if v > lim else v)
-    s[3], s[4], s[5] = p0, p1, p2
-    return out
-
-
-class RateControl:
-    """Body-rate PID with integrator anti-windup driven by the mixer's saturation flags."""
-
-    def __init__(self, params: Params) -> None:
-        self.params = params
-        self._ver = -1
-        self.gains = np.zeros(12)
-        self.state = np.zeros(12)
-        """Integrators (3), previous rates (3), the mixer's last saturation flags (positive 3, negative 3)."""
-        self._load()
-
-    def _load(self) -> None:
-        p = self.params
-        self._ver = p.version
-        self.gains[:] = (
-            p["MC_ROLLRATE_P"],
-            p["MC_PITCHRATE_P"],
-            p["MC_YAWRATE_P"],
-            p["MC_ROLLRATE_I"],
-            p["MC_PITCHRATE_I"],
-            p["MC_YAWRATE_I"],
-            p["MC_ROLLRATE_D"],
-            p["MC_PITCHRATE_D"],
-            p["MC_YAWRATE_D"],
-            p["MC_RR_INT_LIM"],
-            p["MC_PR_INT_LIM"],
-            p["MC_YR_INT_LIM"],
-        )
-
-    def refresh(self) -> None:
-        """Re-read the gains if a parameter changed."""
-        if self.params.version != self._ver:
-            self._load()
-
-    @property
-    def i(self) -> tuple[float, float, float]:
-        """The integrators (roll, pitch, yaw)."""
-        s = self.state
-        return (float(s[0]), float(s[1]), float(s[2]))
-
-    def reset(self) -> None:
-        self.state[0:3] = 0.0
-
-    def update(
-        self,
-        rates_sp: tuple[float, float, float],
-        rates: tuple[float, float, float],
-        dt: float,
-        sat_pos: tuple[bool, bool, bool] = (False, False, False),
-        sat_neg: tuple[bool, bool, bool] = (False, False, False),
-        integrate: bool = True,
-    ) -> tuple[float, float, float]:
-        self.refresh()
-        return rate_pid(self.gains, self.state, *rates_sp, *rates, dt, *sat_pos, *sat_neg, integrate)
-
-
-# ---- the per-tick cascade in one call ----
-@kernel
-def inner_loop(
-    att_g: np.ndarray,
-    rate_g: np.ndarray,
-    rate_s: np.ndarray,
-    use_att: bool,
-    w: float,
-    x: float,
-    y: float,
-    z: float,
-    dw: float,
-    dx: float,
-    dy: float,
-    dz: float,
-    yaw_rate_ff: float,
-    add_rates: bool,
-    br0: float,
-    br1: float,
-    br2: float,
-    p0: float,
-    p1: float,
-    p2: float,
-    thrust: float,
-    dt: float,
-    integrate: bool,
-    idle: float,
-    fac: float,
-) -> Motors:
-    """Attitude P (when ``use_att``; body rates ``br`` added when ``add_rates``, or alone without attitude)
-    → rate PID (anti-windup by the mixer's flags of the last tick, kept in ``rate_s``) → mixer → thrust model."""
-    if use_att:
-        r0, r1, r2 = attitude_rates(att_g, w, x, y, z, dw, dx, dy, dz, yaw_rate_ff)
-        if add_rates:
-            r0, r1, r2 = r0 + br0, r1 + br1, r2 + br2
-    else:
-        r0, r1, r2 = br0, br1, br2
-    s = rate_s
-    t0, t1, t2 = rate_pid(
-        rate_g, s, r0, r1, r2, p0, p1, p2, dt, s[6] != 0.0, s[7] != 0.0, s[8] != 0.0,
-        s[9] != 0.0, s[10] != 0.0, s[11] != 0.0, integrate,
-    )  # fmt: skip
-    m0, m1, m2, m3, s[6], s[7], s[8], s[9], s[10], s[11] = mix(t0, t1, t2, thrust, idle)
-    return (thrust_model(m0, fac), thrust_model(m1, fac), thrust_model(m2, fac), thrust_model(m3, fac))

@@ -25,7 +25,7 @@ import numpy as np
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
 from harness.core.geo import GeoRef, quat_from_euler
-from harness.core.jit import kernel
+from harness.core.jit import compiled, kernel
 from harness.fdm.frame import Gps, SensorFrame
 
 _HIST = 64
@@ -133,6 +133,9 @@ def predict(
     pe += ve * dt + ae * h
     pd += vd * dt + ad * h
     return (w, x, y, z, p, q_, r, pn, pe, pd, vn + an * dt, ve + ae * dt, vd + ad * dt, ad)
+
+
+_predict = compiled(predict)
 
 
 class Estimator:
@@ -282,7 +285,7 @@ class Estimator:
             bx, by, bz = mag.field_body_gauss
         else:
             bx = by = bz = 0.0
-        w, x, y, z, p, q, r, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd, self.acc_d = predict(
+        w, x, y, z, p, q, r, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd, self.acc_d = _predict(
             self._s, self._g, att, t > self._fast_until_ns, *self.q, gx, gy, gz, fx, fy, fz, mag is not None,
             bx, by, bz, t - self.last_mag_ns < 500_000_000, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd,
             self.abn, self.abe, self.abd, dt,

@@ -10,24 +10,22 @@ import math
 
 from harness.autopilot.api import FlightMode, LandedState
 from harness.autopilot.battery import Battery
-from harness.autopilot.control import (
-    AttitudeControl,
-    PositionControl,
-    RateControl,
-    inner_loop,
-    thrust_attitude,
-)
+from harness.autopilot.control import PositionControl, thrust_attitude
 from harness.autopilot.estimator import Estimator
 from harness.autopilot.geofence import Geofence
+from harness.autopilot.inner import AttitudeControl, RateControl, inner_loop
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.navigator import Navigator
 from harness.autopilot.params import Params
 from harness.core.geo import GeoRef
+from harness.core.jit import compiled
 from harness.fdm.frame import SensorFrame
 
 _isnan = math.isnan
 ZERO4 = (0.0, 0.0, 0.0, 0.0)
 ZERO3 = (0.0, 0.0, 0.0)
+_inner_loop = compiled(inner_loop)
+_thrust_attitude = compiled(thrust_attitude)
 
 
 class FlightCore:
@@ -142,7 +140,7 @@ class FlightCore:
                 self._yaw_ff = sp.yaw_rate
                 if _isnan(sp.yaw):
                     self.yaw_hold = math.remainder(self.yaw_hold + sp.yaw_rate * pdt, 2.0 * math.pi)
-            qw, qx, qy, qz, self._coll = thrust_attitude(thr[0], thr[1], thr[2], self.yaw_hold)
+            qw, qx, qy, qz, self._coll = _thrust_attitude(thr[0], thr[1], thr[2], self.yaw_hold)
             self._qd = (qw, qx, qy, qz)
         return self._inner(self._qd, True, self._yaw_ff, ZERO3, False, self._coll, dt)
 
@@ -191,11 +189,11 @@ class FlightCore:
         thrust: float,
         dt: float,
     ) -> tuple[float, float, float, float]:
-        """The per-tick cascade (``control.inner_loop``): attitude setpoint ``qd`` (if ``use_att``) and/or body
+        """The per-tick cascade (``inner.inner_loop``): attitude setpoint ``qd`` (if ``use_att``) and/or body
         rates → rate PID → mixer → thrust model, in one compiled call."""
         att, rate, est = self.att_ctl, self.rate_ctl, self.est  # (their gains refreshed by _load)
         self.collective = thrust
-        return inner_loop(
+        return _inner_loop(
             att.gains, rate.gains, rate.state, use_att, *est.q, *qd, yaw_ff, add_rates, *body_rates, *est.rates,
             thrust, dt, self.landed_state != LandedState.ON_GROUND, self._idle, self._fac,
         )  # fmt: skip

@@ -3,24 +3,31 @@
 The control cascade, the estimator's prediction and the IMU model run for every vehicle at every 250 Hz tick;
 in plain Python their float arithmetic cost more than JSBSim's own step. Their equations are written once,
 as plain functions of floats (and of small float64 arrays that hold a controller's state or gains, mutated
-in place), and compiled to machine code by numba. A call from Python costs about 20 ns per float argument
-and 90 ns per array, so a stage is one call, not one per formula.
+in place), and compiled to machine code by numba for the argument types their annotations give. Through
+numba's dispatcher a call costs about 20 ns per float argument and 90 ns per array, so a stage is one call,
+not one per formula; the hot paths call the compiled entry point (``compiled``), which skips that typing.
 
 Compiled code is IEEE double arithmetic in the order written (no ``fastmath``: no reassociation, no fused
 multiply-add), so the same inputs give the same bits, in every process.
 
 ``cache=True``: the machine code is written beside the source (``__pycache__/*.nbi, *.nbc``) the first time a
-kernel is called on a machine and loaded from there afterwards; numba writes the files atomically, so
+kernel's module is imported on a machine and loaded from there afterwards; numba writes the files atomically, so
 processes compiling at once do not break each other. Where that directory is not writable numba uses its
 user-wide cache directory (``NUMBA_CACHE_DIR`` if set); where neither is, ``kernel`` falls back to a
 directory under the system's temporary directory, and failing that compiles in memory (every process then
 compiles afresh, a second or two of start-up, and logs a warning).
 
-Only the modules that step autopilots or sensors import this one: ``import numba`` costs about 0.2 s.
+numba checks only the kernel's own source file for changes: every kernel a kernel calls must be in the same
+module, and a constant imported from elsewhere is frozen into the cached code (clear ``__pycache__/*.nb*``
+after changing one).
+
+Only the modules that step autopilots or sensors import this one: ``import numba`` and loading the kernels
+cost a few tenths of a second of CPU per process.
 """
 
 from __future__ import annotations
 
+import inspect
 import logging
 import os
 import tempfile
@@ -39,10 +46,33 @@ def _fallback_cache_dir() -> str:
     return os.path.join(tempfile.gettempdir(), f"harness-numba-cache-{os.getuid()}")
 
 
+_ARG_TYPES: dict[str, Any] = {
+    "float": numba.float64,
+    "bool": numba.boolean,
+    "int": numba.int64,
+    "np.ndarray": numba.float64[::1],
+}
+"""The numba type of each annotation a kernel's parameter may have (arrays: float64, 1-D, C-contiguous)."""
+
+
+def _signature(fn: Callable[..., Any]) -> tuple[Any, ...]:
+    """The argument types of ``fn`` from its annotations (the return type numba infers)."""
+    types = []
+    for p in inspect.signature(fn, eval_str=False).parameters.values():
+        t = _ARG_TYPES.get(str(p.annotation))
+        if t is None:
+            raise TypeError(f"kernel {fn.__qualname__}: parameter {p.name} is {p.annotation!r}; use {list(_ARG_TYPES)}")
+        types.append(t)
+    return tuple(types)
+
+
 def kernel(fn: F) -> F:
-    """``fn`` compiled by numba in nopython mode with the on-disk cache (see the module docstring)."""
+    """``fn`` compiled by numba in nopython mode for the argument types its annotations give, with the on-disk
+    cache (see the module docstring). Compiled (or loaded from the cache) here, at import: one signature, so
+    nothing compiles later in a run; arguments of other types are converted or refused (TypeError)."""
+    sig = _signature(fn)
     try:
-        return cast(F, numba.njit(cache=True)(fn))
+        return cast(F, numba.njit(sig, cache=True)(fn))
     except RuntimeError:
         # "cannot cache function ...: no locator available": neither the source tree nor the user-wide cache
         # directory is writable
@@ -50,8 +80,18 @@ def kernel(fn: F) -> F:
     if not getattr(numba_config, "CACHE_DIR", ""):
         setattr(numba_config, "CACHE_DIR", _fallback_cache_dir())  # noqa: B010  (numba's config is untyped)
         try:
-            return cast(F, numba.njit(cache=True)(fn))
+            return cast(F, numba.njit(sig, cache=True)(fn))
         except RuntimeError:
             pass
     _log.warning("numba: no writable cache directory for %s; compiling it in memory", fn.__qualname__)
-    return cast(F, numba.njit(fn))
+    return cast(F, numba.njit(sig)(fn))
+
+
+def compiled(k: F) -> F:
+    """The machine-code entry point of kernel ``k`` (its one signature), for calls from Python on the hot path:
+    it skips numba's dispatch, which types every argument on every call (≈ 25 ns each; a 29-argument kernel
+    is called in half the time). It converts floats and bools as the dispatcher does but does not check an
+    array's dtype or layout: pass only the float64 arrays the kernel's owner made."""
+    disp = cast(Any, k)
+    (sig,) = disp.signatures
+    return cast(F, disp.overloads[sig].entry_point)

@@ -18,7 +18,7 @@ import numpy as np
 
 from harness.core.errors import ScenarioError
 from harness.core.geo import EARTH_RADIUS_M, Quat, Vec3
-from harness.core.jit import kernel
+from harness.core.jit import compiled, kernel
 from harness.fdm.frame import Baro, Gps, Imu, Mag
 
 
@@ -156,6 +156,9 @@ def imu_sample(
     )
 
 
+_imu_sample = compiled(imu_sample)
+
+
 class SensorModel:
     """The sensors of one vehicle. Call :meth:`sample` once per tick with the truth of that tick."""
 
@@ -237,7 +240,7 @@ class SensorModel:
         else:
             z = self._noise_arr
             self._noise_at = at + 13
-        a0, a1, a2, g0, g1, g2 = imu_sample(z, at, self._s, self._imu_c, *specific_force_body_m_s2, *rates_body_rad_s)
+        a0, a1, a2, g0, g1, g2 = _imu_sample(z, at, self._s, self._imu_c, *specific_force_body_m_s2, *rates_body_rad_s)
         imu = Imu((a0, a1, a2), (g0, g1, g2))
         mag = baro = gps = None
         if t_ns >= self._next_mag:

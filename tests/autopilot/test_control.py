@@ -7,14 +7,9 @@ import math
 from hypothesis import given
 from hypothesis import strategies as st
 
-from harness.autopilot.control import (
-    AttitudeControl,
-    PositionControl,
-    TrajectorySetpoint,
-    thrust_to_attitude,
-)
+from harness.autopilot.control import PositionControl, TrajectorySetpoint, thrust_to_attitude
+from harness.autopilot.inner import QUAD_X, AttitudeControl, mix_quad_x
 from harness.autopilot.mathutil import quat_to_euler
-from harness.autopilot.mixer import QUAD_X, mix_quad_x
 from harness.autopilot.params import Params
 from harness.core.geo import quat_from_euler
 
