@@ -19,7 +19,7 @@ import numpy as np
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
 from harness.core.geo import Quat
-from harness.core.jit import compiled, kernel
+from harness.core.jit import callee, compiled, kernel
 
 NAN = math.nan
 
@@ -272,7 +272,7 @@ class PositionControl:
 
 
 # ---- thrust vector -> attitude ----
-@kernel
+@callee
 def dcm_to_quat(
     r00: float, r01: float, r02: float, r10: float, r11: float, r12: float, r20: float, r21: float, r22: float
 ) -> Quat:

@@ -15,13 +15,13 @@ import numpy as np
 
 from harness.autopilot.params import Params
 from harness.core.geo import Quat
-from harness.core.jit import kernel
+from harness.core.jit import callee, kernel
 
 # ---- attitude control ----
 # gains g: MC_ROLL_P, MC_PITCH_P, MC_YAW_P, MC_YAW_WEIGHT, max roll, pitch, yaw rate (rad/s)
 
 
-@kernel
+@callee
 def attitude_rates(
     g: np.ndarray,
     w: float,
@@ -125,7 +125,7 @@ class AttitudeControl:
 # state s: integrators (3), previous rates (3), mixer saturation flags of the last tick: positive (3), negative (3)
 
 
-@kernel
+@callee
 def rate_pid(
     g: np.ndarray,
     s: np.ndarray,
@@ -236,7 +236,7 @@ Sat = tuple[bool, bool, bool]
 Motors = tuple[float, float, float, float]
 
 
-@kernel
+@callee
 def _max4(a: float, b: float, c: float, d: float) -> float:
     """``max(a, b, c, d)``: the first of the largest, as the builtin (an argument replaces only a smaller one)."""
     if b > a:
@@ -246,7 +246,7 @@ def _max4(a: float, b: float, c: float, d: float) -> float:
     return d if d > a else a
 
 
-@kernel
+@callee
 def _min4(a: float, b: float, c: float, d: float) -> float:
     """``min(a, b, c, d)``, as the builtin."""
     if b < a:
@@ -256,7 +256,7 @@ def _min4(a: float, b: float, c: float, d: float) -> float:
     return d if d < a else a
 
 
-@kernel
+@callee
 def mix(
     roll: float, pitch: float, yaw: float, thrust: float, idle: float
 ) -> tuple[float, float, float, float, bool, bool, bool, bool, bool, bool]:
@@ -313,7 +313,7 @@ def mix_quad_x(roll: float, pitch: float, yaw: float, thrust: float, idle: float
     return (m0, m1, m2, m3), (p0, p1, p2), (n0, n1, n2)
 
 
-@kernel
+@callee
 def thrust_model(m: float, fac: float) -> float:
     """The motor command giving normalised thrust ``m``: the inverse of thrust = f u² + (1 - f) u (``THR_MDL_FAC``)."""
     if fac == 1.0:

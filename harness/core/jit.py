@@ -66,13 +66,10 @@ def _signature(fn: Callable[..., Any]) -> tuple[Any, ...]:
     return tuple(types)
 
 
-def kernel(fn: F) -> F:
-    """``fn`` compiled by numba in nopython mode for the argument types its annotations give, with the on-disk
-    cache (see the module docstring). Compiled (or loaded from the cache) here, at import: one signature, so
-    nothing compiles later in a run; arguments of other types are converted or refused (TypeError)."""
-    sig = _signature(fn)
+def _njit(fn: F, *sig: tuple[Any, ...]) -> F:
+    """numba's njit with the on-disk cache, falling back as the module docstring says."""
     try:
-        return cast(F, numba.njit(sig, cache=True)(fn))
+        return cast(F, numba.njit(*sig, cache=True)(fn))
     except RuntimeError:
         # "cannot cache function ...: no locator available": neither the source tree nor the user-wide cache
         # directory is writable
@@ -80,11 +77,26 @@ def kernel(fn: F) -> F:
     if not getattr(numba_config, "CACHE_DIR", ""):
         setattr(numba_config, "CACHE_DIR", _fallback_cache_dir())  # noqa: B010  (numba's config is untyped)
         try:
-            return cast(F, numba.njit(sig, cache=True)(fn))
+            return cast(F, numba.njit(*sig, cache=True)(fn))
         except RuntimeError:
             pass
     _log.warning("numba: no writable cache directory for %s; compiling it in memory", fn.__qualname__)
-    return cast(F, numba.njit(sig)(fn))
+    return cast(F, numba.njit(*sig)(fn))
+
+
+def kernel(fn: F) -> F:
+    """``fn`` compiled by numba in nopython mode for the argument types its annotations give, with the on-disk
+    cache (see the module docstring). Compiled (or loaded from the cache) here, at import: one signature, so
+    nothing compiles later in a run; arguments of other types are converted or refused (TypeError)."""
+    return _njit(fn, _signature(fn))
+
+
+def callee(fn: F) -> F:
+    """``fn`` compiled by numba, lazily: for a function that kernels call (compiled into them, at their types)
+    and Python calls only off the hot path (tests, single stages). Loading it at import would cost a few
+    milliseconds for code the kernels already contain."""
+    _signature(fn)  # the same annotations as a kernel's
+    return _njit(fn)
 
 
 def compiled(k: F) -> F:
