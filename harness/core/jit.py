@@ -66,10 +66,10 @@ def _signature(fn: Callable[..., Any]) -> tuple[Any, ...]:
     return tuple(types)
 
 
-def _njit(fn: F, *sig: tuple[Any, ...]) -> F:
+def _njit(fn: F, sig: tuple[Any, ...] | None) -> F:
     """numba's njit with the on-disk cache, falling back as the module docstring says."""
     try:
-        return cast(F, numba.njit(*sig, cache=True)(fn))
+        return cast(F, numba.njit(sig, cache=True)(fn))
     except RuntimeError:
         # "cannot cache function ...: no locator available": neither the source tree nor the user-wide cache
         # directory is writable
@@ -77,11 +77,11 @@ def _njit(fn: F, *sig: tuple[Any, ...]) -> F:
     if not getattr(numba_config, "CACHE_DIR", ""):
         setattr(numba_config, "CACHE_DIR", _fallback_cache_dir())  # noqa: B010  (numba's config is untyped)
         try:
-            return cast(F, numba.njit(*sig, cache=True)(fn))
+            return cast(F, numba.njit(sig, cache=True)(fn))
         except RuntimeError:
             pass
     _log.warning("numba: no writable cache directory for %s; compiling it in memory", fn.__qualname__)
-    return cast(F, numba.njit(*sig)(fn))
+    return cast(F, numba.njit(sig)(fn))
 
 
 def kernel(fn: F) -> F:
@@ -96,7 +96,7 @@ def callee(fn: F) -> F:
     and Python calls only off the hot path (tests, single stages). Loading it at import would cost a few
     milliseconds for code the kernels already contain."""
     _signature(fn)  # the same annotations as a kernel's
-    return _njit(fn)
+    return _njit(fn, None)
 
 
 def compiled(k: F) -> F:
