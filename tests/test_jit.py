@@ -70,15 +70,25 @@ def test_concurrent_first_compiles_agree(tmp_path: Path) -> None:
 
 
 def test_only_vehicle_stepping_processes_import_numba() -> None:
-    def imports_numba(module: str) -> bool:
-        code = f"import sys, {module}; print('numba' in sys.modules)"
+    def imports_numba(code: str) -> bool:
+        code += "; import sys; print('numba' in sys.modules)"
         out = subprocess.run([sys.executable, "-c", code], env=_env(), capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, out.stderr
         return out.stdout.strip() == "True"
 
-    # the CLI (harness --help), a mission process, the network subscriber: no
-    for module in ("harness.cli", "harness.simclock.mission", "harness.net.subscriber"):
-        assert not imports_numba(module), module
-    # the processes that step autopilots and sensors: yes
-    for module in ("harness.autopilot.sitl", "harness.run.launcher"):
-        assert imports_numba(module), module
+    # the CLI (harness --help), a mission process, the network subscriber, the scenario layer (which reads the
+    # sensors' configuration), the sweep driver and the launcher's module: no
+    for module in (
+        "harness.cli",
+        "harness.simclock.mission",
+        "harness.net.subscriber",
+        "harness.scenario.config",
+        "harness.sweep.runner",
+        "harness.run.launcher",
+    ):
+        assert not imports_numba(f"import {module}"), module
+    # what steps autopilots and sensors: the autopilot host, the physics once it has made its vehicles
+    assert imports_numba("import harness.autopilot.sitl")
+    physics = "from harness.fdm.physics import Physics, PhysicsConfig"
+    assert not imports_numba(physics)
+    assert imports_numba(f"{physics}; Physics(PhysicsConfig(n_vehicles=1))")

@@ -2,8 +2,9 @@
 
 Pure per-vehicle state fed with ground truth every tick; all randomness from the vehicle's own seeded
 ``numpy.random.Generator``, drawn in a fixed order, so the same seed gives bit-identical streams. The IMU,
-sampled every tick, is one call of the numba-compiled ``imu_sample`` (``harness.core.jit``); the slower
-sensors are plain float math.
+sampled every tick, is one call of the numba-compiled ``imu.imu_sample``, imported when a ``SensorModel`` is
+made (the scenario layer reads ``SensorConfig`` from here without importing numba); the slower sensors are
+plain float math.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ import numpy as np
 
 from harness.core.errors import ScenarioError
 from harness.core.geo import EARTH_RADIUS_M, Quat, Vec3
-from harness.core.jit import compiled, kernel
 from harness.fdm.frame import Baro, Gps, Imu, Mag
 
 
@@ -121,44 +121,6 @@ def rotate_ned_to_body(q: Quat, v: Vec3) -> Vec3:
     return (r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz)
 
 
-@kernel
-def imu_sample(
-    z: np.ndarray,
-    at: int,
-    s: np.ndarray,
-    c: np.ndarray,
-    sf0: float,
-    sf1: float,
-    sf2: float,
-    w0: float,
-    w1: float,
-    w2: float,
-) -> tuple[float, float, float, float, float, float]:
-    """One IMU sample: the biases in ``s`` (accelerometer 3, gyro 3, barometer) take a random-walk step and
-    the readings get them plus white noise. ``z[at:at + 12]``: the IMU's standard normal draws, ``z[at + 12]``
-    the barometer drift's; ``c``: walk per tick (accelerometer, gyro), noise σ (accelerometer, gyro), baro walk.
-    Returns (specific force (3), rates (3)) in body axes."""
-    wa, wg, an, gn = c[0], c[1], c[2], c[3]
-    ab0 = s[0] = s[0] + wa * z[at]
-    gb0 = s[3] = s[3] + wg * z[at + 3]
-    ab1 = s[1] = s[1] + wa * z[at + 1]
-    gb1 = s[4] = s[4] + wg * z[at + 4]
-    ab2 = s[2] = s[2] + wa * z[at + 2]
-    gb2 = s[5] = s[5] + wg * z[at + 5]
-    s[6] += c[4] * z[at + 12]
-    return (
-        sf0 + ab0 + an * z[at + 6],
-        sf1 + ab1 + an * z[at + 7],
-        sf2 + ab2 + an * z[at + 8],
-        w0 + gb0 + gn * z[at + 9],
-        w1 + gb1 + gn * z[at + 10],
-        w2 + gb2 + gn * z[at + 11],
-    )
-
-
-_imu_sample = compiled(imu_sample)
-
-
 class SensorModel:
     """The sensors of one vehicle. Call :meth:`sample` once per tick with the truth of that tick."""
 
@@ -198,6 +160,9 @@ class SensorModel:
         # per-tick constants (the same products the formulas below would form every tick)
         self._an, self._gn = cfg.accel_noise_m_s2 * on, cfg.gyro_noise_rad_s * on
         self._imu_c = np.array([self._walk_accel, self._walk_gyro, self._an, self._gn, self._walk_baro])
+        from harness.fdm.imu import imu_sample_entry  # numba only where sensors are stepped
+
+        self._imu_sample = imu_sample_entry
         self._mn = cfg.mag_noise_gauss * on
         self._mb = (on * cfg.mag_bias_gauss[0], on * cfg.mag_bias_gauss[1], on * cfg.mag_bias_gauss[2])
         self._bn = cfg.baro_noise_m * on
@@ -240,7 +205,9 @@ class SensorModel:
         else:
             z = self._noise_arr
             self._noise_at = at + 13
-        a0, a1, a2, g0, g1, g2 = _imu_sample(z, at, self._s, self._imu_c, *specific_force_body_m_s2, *rates_body_rad_s)
+        a0, a1, a2, g0, g1, g2 = self._imu_sample(
+            z, at, self._s, self._imu_c, *specific_force_body_m_s2, *rates_body_rad_s
+        )
         imu = Imu((a0, a1, a2), (g0, g1, g2))
         mag = baro = gps = None
         if t_ns >= self._next_mag:
