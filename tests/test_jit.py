@@ -19,6 +19,7 @@ from harness.autopilot.inner import mix_quad_x
 q, n = thrust_to_attitude((0.1, -0.05, -0.5), 0.3)
 m, sp, sn = mix_quad_x(0.6, 0.0, 0.5, 0.5, 0.05)
 print([x.hex() for x in (*q, n, *m)], sp, sn)
+print("numba" in sys.modules)
 """
 
 
@@ -92,3 +93,25 @@ def test_only_vehicle_stepping_processes_import_numba() -> None:
     physics = "from harness.fdm.physics import Physics, PhysicsConfig"
     assert not imports_numba(physics)
     assert imports_numba(f"{physics}; Physics(PhysicsConfig(n_vehicles=1))")
+
+
+def test_plain_python_kernels_give_the_same_bits_without_numba() -> None:
+    compiled = _probe(_env())
+    plain = _probe(_env(HARNESS_JIT="0"))
+    assert compiled.returncode == 0 and plain.returncode == 0, compiled.stderr + plain.stderr
+    bits, numba_loaded = compiled.stdout.splitlines()
+    assert plain.stdout.splitlines() == [bits, "False"] and numba_loaded == "True"
+
+
+def test_prefer_decides_before_the_first_kernel_only() -> None:
+    def run(code: str, **env: str) -> str:
+        code = f"import sys; from harness.core import jit; {code}; print(jit.ENABLED, 'numba' in sys.modules)"
+        out = subprocess.run([sys.executable, "-c", code], env=_env(**env), capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.strip()
+
+    # one vehicle: plain Python, numba never imported
+    assert run("jit.prefer(False); import harness.autopilot.flight") == "False False"
+    # too late once a kernel exists (its state arrays are made for it), and HARNESS_JIT has the last word
+    assert run("import harness.autopilot.flight; jit.prefer(False)") == "True True"
+    assert run("jit.prefer(False); import harness.autopilot.flight", HARNESS_JIT="1") == "True True"

@@ -19,7 +19,7 @@ import numpy as np
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
 from harness.core.geo import Quat
-from harness.core.jit import callee, compiled, kernel
+from harness.core.jit import callee, compiled, floats, kernel
 
 NAN = math.nan
 
@@ -180,8 +180,8 @@ class PositionControl:
     def __init__(self, params: Params) -> None:
         self.params = params
         self._ver = -1
-        self._g = np.zeros(14)
-        self._s = np.zeros(5)
+        self._g = floats([0.0] * 14)
+        self._s = floats([0.0] * 5)
         self._g[13] = params["MPC_XY_VEL_MAX"]
         self._s[_HOVER] = params["MPC_THR_HOVER"]
         self.thr = (0.0, 0.0, -params["MPC_THR_HOVER"])

@@ -25,7 +25,7 @@ import numpy as np
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
 from harness.core.geo import GeoRef, quat_from_euler
-from harness.core.jit import compiled, kernel
+from harness.core.jit import compiled, floats, kernel
 from harness.fdm.frame import Gps, SensorFrame
 
 _HIST = 64
@@ -145,11 +145,9 @@ class Estimator:
         self.ref: GeoRef | None = origin
         self._ref_given = origin is not None
         self.q = (1.0, 0.0, 0.0, 0.0)
-        self._s = np.zeros(7)
+        self._s = floats([0.0] * 7)
         """The filter's own state, mutated by ``predict``: gyro bias (3), linear acceleration from GPS (3),
         heading error held from the last magnetometer sample."""
-        self.bias = self._s[0:3]
-        """Gyro bias estimate, rad/s (a view of the state array)."""
         self.rates = (0.0, 0.0, 0.0)
         self.accel_body = (0.0, 0.0, -G_M_S2)
         self.pn = self.pe = self.pd = 0.0
@@ -172,7 +170,6 @@ class Estimator:
         self._ref_alt_n = 0
         self._hist: list[tuple[int, float, float, float, float, float, float]] = []
         self._hist_i = 0
-        self._alin = self._s[3:6]
         self._alin_tau = 1.0
         """Low-pass time constant of the GPS-measured linear acceleration (GPS velocity noise, differentiated)."""
         self._gps_vel_prev: tuple[int, float, float, float] | None = None
@@ -183,7 +180,7 @@ class Estimator:
         """Until then the attitude corrections run 10x faster (convergence after initialisation)."""
         self.acc_d = 0.0
         """Estimated vertical (down) acceleration, m/s²."""
-        self._g = np.zeros(4)
+        self._g = floats([0.0] * 4)
         """ATT_W_ACC, ATT_W_MAG, ATT_W_GYRO_BIAS, the magnetic declination (rad)."""
         self._ver = -1
         self._load()
@@ -200,6 +197,12 @@ class Estimator:
         self._req_eph = p["EKF2_REQ_EPH"]
 
     # ---- properties the rest of the autopilot reads ----
+    @property
+    def bias(self) -> tuple[float, float, float]:
+        """Gyro bias estimate, rad/s."""
+        s = self._s
+        return (float(s[0]), float(s[1]), float(s[2]))
+
     @property
     def alt_amsl_m(self) -> float:
         return (self.ref.alt_m if self.ref is not None else 0.0) - self.pd
@@ -234,7 +237,8 @@ class Estimator:
     # ---- the update ----
     def forget_gps_motion(self) -> None:
         """GPS gone: stop correcting the attitude for the linear acceleration its velocity last showed."""
-        self._alin[0] = self._alin[1] = self._alin[2] = 0.0
+        s = self._s
+        s[3] = s[4] = s[5] = 0.0
 
     def update(self, frame: SensorFrame, dt: float) -> None:
         if self.params.version != self._ver:
@@ -369,11 +373,11 @@ class Estimator:
         prev = self._gps_vel_prev
         if prev is not None and 0.0 < (g.measured_at_ns - prev[0]) * 1e-9 < 1.0:
             gdt = (g.measured_at_ns - prev[0]) * 1e-9
-            a = self._alin
+            a = self._s  # the linear acceleration: a[3:6]
             k = 1.0 - math.exp(-gdt / self._alin_tau)
-            a[0] += k * ((vn_g - prev[1]) / gdt - a[0])
-            a[1] += k * ((ve_g - prev[2]) / gdt - a[1])
-            a[2] += k * ((vd_g - prev[3]) / gdt - a[2])
+            a[3] += k * ((vn_g - prev[1]) / gdt - a[3])
+            a[4] += k * ((ve_g - prev[2]) / gdt - a[4])
+            a[5] += k * ((vd_g - prev[3]) / gdt - a[5])
         self._gps_vel_prev = (g.measured_at_ns, vn_g, ve_g, vd_g)
         if not self.pos_valid or dt <= 0.0 or dt > 2.0:
             self.pn, self.pe = n, e

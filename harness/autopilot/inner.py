@@ -15,7 +15,7 @@ import numpy as np
 
 from harness.autopilot.params import Params
 from harness.core.geo import Quat
-from harness.core.jit import callee, kernel
+from harness.core.jit import callee, floats, kernel
 
 # ---- attitude control ----
 # gains g: MC_ROLL_P, MC_PITCH_P, MC_YAW_P, MC_YAW_WEIGHT, max roll, pitch, yaw rate (rad/s)
@@ -93,7 +93,7 @@ class AttitudeControl:
     def __init__(self, params: Params) -> None:
         self.params = params
         self._ver = -1
-        self.gains = np.zeros(7)
+        self.gains = floats([0.0] * 7)
         """MC_ROLL_P, MC_PITCH_P, MC_YAW_P, MC_YAW_WEIGHT, the roll, pitch and yaw rate limits (rad/s)."""
         self._load()
 
@@ -172,8 +172,8 @@ class RateControl:
     def __init__(self, params: Params) -> None:
         self.params = params
         self._ver = -1
-        self.gains = np.zeros(12)
-        self.state = np.zeros(12)
+        self.gains = floats([0.0] * 12)
+        self.state = floats([0.0] * 12)
         """Integrators (3), previous rates (3), the mixer's last saturation flags (positive 3, negative 3)."""
         self._load()
 
@@ -207,7 +207,8 @@ class RateControl:
         return (float(s[0]), float(s[1]), float(s[2]))
 
     def reset(self) -> None:
-        self.state[0:3] = 0.0
+        s = self.state
+        s[0] = s[1] = s[2] = 0.0
 
     def update(
         self,

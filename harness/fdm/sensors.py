@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.core import jit
 from harness.core.errors import ScenarioError
 from harness.core.geo import EARTH_RADIUS_M, Quat, Vec3
 from harness.fdm.frame import Baro, Gps, Imu, Mag
@@ -130,16 +131,14 @@ class SensorModel:
         self.tick_ns = tick_ns
         self.mag_ned = mag_ned_gauss
         self._noise: list[float] = []
-        self._noise_arr = np.zeros(0)
-        """The current block of standard normal draws (``_noise`` is the same as a list)."""
+        self._noise_k: Any = []
+        """The current block of standard normal draws as ``imu_sample`` takes it (``_noise`` as a list)."""
         self._noise_at = 0
         on = 1.0 if cfg.noise else 0.0
         self._on = on
-        self._s = np.array([*(on * b for b in cfg.accel_bias_m_s2), *(on * b for b in cfg.gyro_bias_rad_s), 0.0])
+        self._s = jit.floats([*(on * b for b in cfg.accel_bias_m_s2), *(on * b for b in cfg.gyro_bias_rad_s), 0.0])
         """The drifting biases, mutated by ``imu_sample``: accelerometer (3), gyro (3), barometer."""
         self._s[6] = on * cfg.baro_bias_m
-        self.accel_bias = self._s[0:3]
-        self.gyro_bias = self._s[3:6]
         self._gps_err = [0.0, 0.0, 0.0]
         self._history: collections.deque[tuple[int, float, float, float, Vec3]] = collections.deque()
         """(t_ns, lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s) of the last ticks, as long as the GPS latency."""
@@ -159,7 +158,7 @@ class SensorModel:
         self._gps_b = math.sqrt(1.0 - self._gps_a**2) * on
         # per-tick constants (the same products the formulas below would form every tick)
         self._an, self._gn = cfg.accel_noise_m_s2 * on, cfg.gyro_noise_rad_s * on
-        self._imu_c = np.array([self._walk_accel, self._walk_gyro, self._an, self._gn, self._walk_baro])
+        self._imu_c = jit.floats([self._walk_accel, self._walk_gyro, self._an, self._gn, self._walk_baro])
         from harness.fdm.imu import imu_sample_entry  # numba only where sensors are stepped
 
         self._imu_sample = imu_sample_entry
@@ -171,6 +170,18 @@ class SensorModel:
         self._epv = max(0.8, cfg.gps_alt_noise_m * 2.0)
 
     @property
+    def accel_bias(self) -> Vec3:
+        """The accelerometer's bias now (turn-on bias plus random walk), m/s²."""
+        s = self._s
+        return (float(s[0]), float(s[1]), float(s[2]))
+
+    @property
+    def gyro_bias(self) -> Vec3:
+        """The gyro's bias now, rad/s."""
+        s = self._s
+        return (float(s[3]), float(s[4]), float(s[5]))
+
+    @property
     def baro_bias_m(self) -> float:
         """The barometer's bias now (turn-on bias plus drift), m."""
         return float(self._s[6])
@@ -180,8 +191,9 @@ class SensorModel:
         (one numpy call per 4096 values instead of several per tick): same seed, same sequence."""
         at = self._noise_at
         if at + n > len(self._noise):
-            self._noise_arr = self.rng.standard_normal(4096)
-            self._noise = self._noise_arr.tolist()
+            block = self.rng.standard_normal(4096)
+            self._noise = block.tolist()
+            self._noise_k = block if jit.ENABLED else self._noise
             at = 0
         self._noise_at = at + n
         return self._noise[at : at + n]
@@ -201,9 +213,9 @@ class SensorModel:
         # those sample; a fixed number per sensor keeps the streams aligned
         at = self._noise_at
         if at + 13 > len(self._noise):
-            z, at = np.array([*self._normals(12), *self._normals(1)]), 0
+            z, at = jit.floats([*self._normals(12), *self._normals(1)]), 0
         else:
-            z = self._noise_arr
+            z = self._noise_k
             self._noise_at = at + 13
         a0, a1, a2, g0, g1, g2 = self._imu_sample(
             z, at, self._s, self._imu_c, *specific_force_body_m_s2, *rates_body_rad_s
