@@ -1,22 +1,27 @@
-"""The multicopter control cascade, modelled on PX4's controllers, in plain float math.
+"""The multicopter control cascade's outer part, modelled on PX4's controllers, compiled with numba.
 
-position P → velocity PID (+ acceleration feed-forward) → thrust vector → attitude setpoint (quaternion)
-→ attitude P (tilt before yaw, ``MC_YAW_WEIGHT``) → body-rate PID → quad-X mixer (yaw gives way first).
+position P → velocity PID (+ acceleration feed-forward) → thrust vector → attitude setpoint (quaternion);
+the inner loop (attitude P → body-rate PID → quad-X mixer) is ``inner.py``.
 
-Gains are the PX4 parameters (``MPC_*``, ``MC_*``); each controller re-reads them when the parameter
-registry's version changes.
+Gains are the PX4 parameters (``MPC_*``); the controller copies them into a float64 array when the parameter
+registry's version changes. The equations are the ``@kernel`` functions below (numba, see
+``harness.core.jit``): each stage is one compiled call over floats, the gains array and the controller's
+state array (integrators, hover thrust), which the kernel mutates in place; ``PositionControl`` is the
+Python interface the flight core and the tests use.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
 from harness.core.geo import Quat
+from harness.core.jit import callee, compiled, floats, kernel
 
 NAN = math.nan
-_isnan = math.isnan
 
 
 class TrajectorySetpoint:
@@ -49,48 +54,205 @@ class TrajectorySetpoint:
         self.yaw_rate = yaw_rate
 
 
+# ---- position control ----
+# gains g: kp_xy, kp_z, kv_xy, ki_xy, kv_z, ki_z, vel_up, vel_dn, thr_min, thr_max, cos_tilt_max,
+#          sin_tilt_max, acc_hor_max, xy_vel_max
+# state s: ix, iy, iz, acc_z (last vertical acceleration setpoint, NED m/s²), hover (hover thrust in use)
+_IX, _IY, _IZ, _ACC_Z, _HOVER = range(5)
+
+
+@kernel
+def position_step(
+    g: np.ndarray,
+    s: np.ndarray,
+    spx: float,
+    spy: float,
+    spz: float,
+    svx: float,
+    svy: float,
+    svz: float,
+    sax: float,
+    say: float,
+    saz: float,
+    pn: float,
+    pe: float,
+    pd: float,
+    vn: float,
+    ve: float,
+    vd: float,
+    dt: float,
+) -> tuple[float, float, float, float, float, float]:
+    """Position P and velocity PID, integrators in ``s`` updated; returns (velocity setpoint, thrust vector)."""
+    kp_xy, kp_z, kv_xy, ki_xy, kv_z, ki_z = g[0], g[1], g[2], g[3], g[4], g[5]
+    vel_up, vel_dn, thr_min, thr_max = g[6], g[7], g[8], g[9]
+    cos_max, sin_max, acc_hor_max, lim = g[10], g[11], g[12], g[13]
+    # position P -> velocity setpoint (feed-forward added)
+    vx = 0.0 if math.isnan(svx) else svx
+    vy = 0.0 if math.isnan(svy) else svy
+    vz = 0.0 if math.isnan(svz) else svz
+    if not math.isnan(spx):
+        vx += kp_xy * (spx - pn)
+        vy += kp_xy * (spy - pe)
+    elif math.isnan(svx):
+        vx, vy = vn, ve  # acceleration only: no horizontal velocity error
+    if not math.isnan(spz):
+        vz += kp_z * (spz - pd)
+    elif math.isnan(svz):
+        vz = vd
+    h = math.sqrt(vx * vx + vy * vy)
+    if h > lim:
+        vx *= lim / h
+        vy *= lim / h
+    vz = -vel_up if vz < -vel_up else (vel_dn if vz > vel_dn else vz)
+    # velocity PID -> acceleration setpoint
+    ex, ey, ez = vx - vn, vy - ve, vz - vd
+    ax = kv_xy * ex + s[_IX] + (0.0 if math.isnan(sax) else sax)
+    ay = kv_xy * ey + s[_IY] + (0.0 if math.isnan(say) else say)
+    az = kv_z * ez + s[_IZ] + (0.0 if math.isnan(saz) else saz)
+    ah = math.sqrt(ax * ax + ay * ay)
+    if ah > acc_hor_max:
+        ax *= acc_hor_max / ah
+        ay *= acc_hor_max / ah
+    s[_ACC_Z] = az
+    # acceleration -> thrust vector (PX4: body z from the tilt, collective from the vertical part)
+    bx, by, bz = -ax, -ay, G_M_S2
+    bn = math.sqrt(bx * bx + by * by + bz * bz)
+    bx, by, bz = bx / bn, by / bn, bz / bn
+    if bz < cos_max:
+        k = sin_max / math.sqrt(bx * bx + by * by)
+        bx, by, bz = bx * k, by * k, cos_max
+    hov = s[_HOVER]
+    coll = (az * (hov / G_M_S2) - hov) / bz
+    sat_lo = coll > -thr_min
+    if sat_lo:
+        coll = -thr_min
+    tx, ty, tz = bx * coll, by * coll, bz * coll
+    # keep vertical thrust priority: limit the horizontal part to what is left below thr_max
+    sat_hi = False
+    if -tz > thr_max:
+        tz = -thr_max
+        sat_hi = True
+    th = math.sqrt(tx * tx + ty * ty)
+    r2 = thr_max * thr_max - tz * tz
+    room = math.sqrt(0.0 if r2 < 0.0 else r2)
+    if th > room:
+        tx *= room / th
+        ty *= room / th
+    # integrators with anti-windup
+    if not ((sat_hi and ez < 0.0) or (sat_lo and ez > 0.0)):
+        iz = s[_IZ] + ki_z * ez * dt
+        s[_IZ] = -G_M_S2 if iz < -G_M_S2 else (G_M_S2 if iz > G_M_S2 else iz)
+    if th <= room and ah <= acc_hor_max:
+        # integrate a bounded error: a large step (offboard velocity) does not wind the integrator up
+        en = math.sqrt(ex * ex + ey * ey)
+        k = ki_xy * dt * (1.0 if en <= 0.5 else 0.5 / en)
+        ix = s[_IX] + k * ex
+        iy = s[_IY] + k * ey
+        ih = math.sqrt(ix * ix + iy * iy)
+        if ih > 3.0:
+            ix *= 3.0 / ih
+            iy *= 3.0 / ih
+        s[_IX], s[_IY] = ix, iy
+    return (vx, vy, vz, tx, ty, tz)
+
+
+@kernel
+def change_hover(s: np.ndarray, hover: float) -> None:
+    """Hover thrust ``hover`` in the position state ``s``, the vertical integrator moved so that the thrust
+    output stays continuous (as PX4's updateHoverThrust)."""
+    old = s[_HOVER]
+    if hover <= 0.0 or hover == old:
+        return
+    a = s[_ACC_Z]
+    a_new = (a - G_M_S2) * old / hover + G_M_S2
+    s[_IZ] += a_new - a
+    s[_ACC_Z] = a_new
+    s[_HOVER] = hover
+
+
+_position_step = compiled(position_step)
+_change_hover = compiled(change_hover)
+
+
 class PositionControl:
     """Position P and velocity PID; output a thrust vector in NED (normalised thrust units)."""
 
     def __init__(self, params: Params) -> None:
         self.params = params
         self._ver = -1
-        self.ix = self.iy = 0.0
-        self.iz = 0.0
-        self.xy_vel_max = params["MPC_XY_VEL_MAX"]
-        self.hover = params["MPC_THR_HOVER"]
-        """Hover thrust in use (the flight core updates it from its in-flight estimate)."""
+        self._g = floats([0.0] * 14)
+        self._s = floats([0.0] * 5)
+        self._g[13] = params["MPC_XY_VEL_MAX"]
+        self._s[_HOVER] = params["MPC_THR_HOVER"]
         self.thr = (0.0, 0.0, -params["MPC_THR_HOVER"])
         self.vel_sp = (0.0, 0.0, 0.0)
-        self.acc_z = 0.0
-        """Last vertical acceleration setpoint (NED, m/s²)."""
         self._load()
 
     def _load(self) -> None:
         p = self.params
         self._ver = p.version
-        self.kp_xy, self.kp_z = p["MPC_XY_P"], p["MPC_Z_P"]
-        self.kv_xy, self.ki_xy, self.kd_xy = p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_I_ACC"], p["MPC_XY_VEL_D_ACC"]
-        self.kv_z, self.ki_z, self.kd_z = p["MPC_Z_VEL_P_ACC"], p["MPC_Z_VEL_I_ACC"], p["MPC_Z_VEL_D_ACC"]
-        self.vel_up, self.vel_dn = p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"]
-        self.thr_min, self.thr_max = p["MPC_THR_MIN"], p["MPC_THR_MAX"]
-        self.tilt_max = math.radians(p["MPC_TILTMAX_AIR"])
-        self._cos_tilt_max = math.cos(self.tilt_max)
-        self._sin_tilt_max = math.sqrt(1.0 - self._cos_tilt_max * self._cos_tilt_max)
-        self.acc_hor_max = p["MPC_ACC_HOR_MAX"]
+        cos_tilt = math.cos(math.radians(p["MPC_TILTMAX_AIR"]))
+        self._g[:13] = (
+            p["MPC_XY_P"],
+            p["MPC_Z_P"],
+            p["MPC_XY_VEL_P_ACC"],
+            p["MPC_XY_VEL_I_ACC"],
+            p["MPC_Z_VEL_P_ACC"],
+            p["MPC_Z_VEL_I_ACC"],
+            p["MPC_Z_VEL_MAX_UP"],
+            p["MPC_Z_VEL_MAX_DN"],
+            p["MPC_THR_MIN"],
+            p["MPC_THR_MAX"],
+            cos_tilt,
+            math.sqrt(1.0 - cos_tilt * cos_tilt),
+            p["MPC_ACC_HOR_MAX"],
+        )
+
+    @property
+    def ix(self) -> float:
+        return float(self._s[_IX])
+
+    @ix.setter
+    def ix(self, v: float) -> None:
+        self._s[_IX] = v
+
+    @property
+    def iy(self) -> float:
+        return float(self._s[_IY])
+
+    @iy.setter
+    def iy(self, v: float) -> None:
+        self._s[_IY] = v
+
+    @property
+    def iz(self) -> float:
+        return float(self._s[_IZ])
+
+    @property
+    def acc_z(self) -> float:
+        """Last vertical acceleration setpoint (NED, m/s²)."""
+        return float(self._s[_ACC_Z])
+
+    @property
+    def hover(self) -> float:
+        """Hover thrust in use (the flight core updates it from its in-flight estimate)."""
+        return float(self._s[_HOVER])
+
+    @hover.setter
+    def hover(self, v: float) -> None:
+        self._s[_HOVER] = v
+
+    @property
+    def xy_vel_max(self) -> float:
+        """Horizontal velocity limit, m/s (``MPC_XY_VEL_MAX`` when the controller was made)."""
+        return float(self._g[13])
 
     def reset(self) -> None:
-        self.ix = self.iy = self.iz = 0.0
+        self._s[_IX] = self._s[_IY] = self._s[_IZ] = 0.0
 
     def set_hover(self, hover: float) -> None:
         """Change the hover thrust keeping the thrust output continuous (as PX4's updateHoverThrust)."""
-        if hover <= 0.0 or hover == self.hover:
-            return
-        a = self.acc_z
-        a_new = (a - G_M_S2) * self.hover / hover + G_M_S2
-        self.iz += a_new - a
-        self.acc_z = a_new
-        self.hover = hover
+        _change_hover(self._s, hover)
 
     def update(
         self,
@@ -101,101 +263,16 @@ class PositionControl:
     ) -> tuple[float, float, float]:
         if self.params.version != self._ver:
             self._load()
-        pn, pe, pd = pos
-        vn, ve, vd = vel
-        # position P -> velocity setpoint (feed-forward added)
-        vx = 0.0 if _isnan(sp.vx) else sp.vx
-        vy = 0.0 if _isnan(sp.vy) else sp.vy
-        vz = 0.0 if _isnan(sp.vz) else sp.vz
-        if not _isnan(sp.px):
-            vx += self.kp_xy * (sp.px - pn)
-            vy += self.kp_xy * (sp.py - pe)
-        elif _isnan(sp.vx):
-            vx, vy = vn, ve  # acceleration only: no horizontal velocity error
-        if not _isnan(sp.pz):
-            vz += self.kp_z * (sp.pz - pd)
-        elif _isnan(sp.vz):
-            vz = vd
-        h = math.sqrt(vx * vx + vy * vy)
-        lim = self.xy_vel_max
-        if h > lim:
-            vx *= lim / h
-            vy *= lim / h
-        vz = -self.vel_up if vz < -self.vel_up else (self.vel_dn if vz > self.vel_dn else vz)
+        vx, vy, vz, tx, ty, tz = _position_step(
+            self._g, self._s, sp.px, sp.py, sp.pz, sp.vx, sp.vy, sp.vz, sp.ax, sp.ay, sp.az, *pos, *vel, dt
+        )
         self.vel_sp = (vx, vy, vz)
-        # velocity PID -> acceleration setpoint
-        ex, ey, ez = vx - vn, vy - ve, vz - vd
-        ax = self.kv_xy * ex + self.ix + (0.0 if _isnan(sp.ax) else sp.ax)
-        ay = self.kv_xy * ey + self.iy + (0.0 if _isnan(sp.ay) else sp.ay)
-        az = self.kv_z * ez + self.iz + (0.0 if _isnan(sp.az) else sp.az)
-        ah = math.sqrt(ax * ax + ay * ay)
-        if ah > self.acc_hor_max:
-            ax *= self.acc_hor_max / ah
-            ay *= self.acc_hor_max / ah
-        self.acc_z = az
-        # acceleration -> thrust vector (PX4: body z from the tilt, collective from the vertical part)
-        bx, by, bz = -ax, -ay, G_M_S2
-        bn = math.sqrt(bx * bx + by * by + bz * bz)
-        bx, by, bz = bx / bn, by / bn, bz / bn
-        cos_max = self._cos_tilt_max
-        if bz < cos_max:
-            s = self._sin_tilt_max / math.sqrt(bx * bx + by * by)
-            bx, by, bz = bx * s, by * s, cos_max
-        hov = self.hover
-        coll = (az * (hov / G_M_S2) - hov) / bz
-        sat_lo = coll > -self.thr_min
-        if sat_lo:
-            coll = -self.thr_min
-        tx, ty, tz = bx * coll, by * coll, bz * coll
-        # keep vertical thrust priority: limit the horizontal part to what is left below thr_max
-        sat_hi = False
-        if -tz > self.thr_max:
-            tz = -self.thr_max
-            sat_hi = True
-        th = math.sqrt(tx * tx + ty * ty)
-        room = math.sqrt(max(self.thr_max * self.thr_max - tz * tz, 0.0))
-        if th > room:
-            tx *= room / th
-            ty *= room / th
-        # integrators with anti-windup
-        if not ((sat_hi and ez < 0.0) or (sat_lo and ez > 0.0)):
-            self.iz += self.ki_z * ez * dt
-            lim_i = G_M_S2
-            self.iz = -lim_i if self.iz < -lim_i else (lim_i if self.iz > lim_i else self.iz)
-        if th <= room and ah <= self.acc_hor_max:
-            # integrate a bounded error: a large step (offboard velocity) does not wind the integrator up
-            en = math.sqrt(ex * ex + ey * ey)
-            k = self.ki_xy * dt * (1.0 if en <= 0.5 else 0.5 / en)
-            self.ix += k * ex
-            self.iy += k * ey
-            ih = math.sqrt(self.ix * self.ix + self.iy * self.iy)
-            if ih > 3.0:
-                self.ix *= 3.0 / ih
-                self.iy *= 3.0 / ih
         self.thr = (tx, ty, tz)
         return self.thr
 
 
-def thrust_to_attitude(thr: tuple[float, float, float], yaw: float) -> tuple[Quat, float]:
-    """PX4's bodyzToAttitude: the attitude whose body z opposes the thrust vector with the given yaw."""
-    tx, ty, tz = thr
-    n = math.sqrt(tx * tx + ty * ty + tz * tz)
-    if n < 1e-6:
-        zx, zy, zz = 0.0, 0.0, 1.0
-    else:
-        zx, zy, zz = -tx / n, -ty / n, -tz / n
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    # y_C = (-sin yaw, cos yaw, 0); body_x = y_C x body_z
-    xx, xy, xz = cy * zz, sy * zz, -sy * zy - cy * zx
-    if zz < 0.0:
-        xx, xy, xz = -xx, -xy, -xz
-    xn = math.sqrt(xx * xx + xy * xy + xz * xz)
-    xx, xy, xz = xx / xn, xy / xn, xz / xn
-    # body_y = body_z x body_x
-    yx, yy, yz = zy * xz - zz * xy, zz * xx - zx * xz, zx * xy - zy * xx
-    return dcm_to_quat(xx, yx, zx, xy, yy, zy, xz, yz, zz), n
-
-
+# ---- thrust vector -> attitude ----
+@callee
 def dcm_to_quat(
     r00: float, r01: float, r02: float, r10: float, r11: float, r12: float, r20: float, r21: float, r22: float
 ) -> Quat:
@@ -213,208 +290,28 @@ def dcm_to_quat(
     return ((r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s)
 
 
-class AttitudeControl:
-    """Quaternion attitude P (PX4): tilt is corrected with full authority, yaw with ``MC_YAW_WEIGHT``."""
-
-    def __init__(self, params: Params) -> None:
-        self.params = params
-        self._ver = -1
-        self._load()
-
-    def _load(self) -> None:
-        p = self.params
-        self._ver = p.version
-        self.kr, self.kp, self.ky = p["MC_ROLL_P"], p["MC_PITCH_P"], p["MC_YAW_P"]
-        self.yaw_w = p["MC_YAW_WEIGHT"]
-        self.max_r = math.radians(p["MC_ROLLRATE_MAX"])
-        self.max_p = math.radians(p["MC_PITCHRATE_MAX"])
-        self.max_y = math.radians(p["MC_YAWRATE_MAX"])
-
-    def update(self, q: Quat, qd: Quat, yaw_rate_ff: float = 0.0) -> tuple[float, float, float]:
-        if self.params.version != self._ver:
-            self._load()
-        w, x, y, z = q
-        dw, dx, dy, dz = qd
-        # body z axes in world (third column of R)
-        ex, ey, ez = 2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)
-        fx, fy, fz = 2 * (dx * dz + dw * dy), 2 * (dy * dz - dw * dx), 1 - 2 * (dx * dx + dy * dy)
-        # shortest rotation e_z -> e_z_d, applied to q: reduced attitude setpoint
-        d = ex * fx + ey * fy + ez * fz
-        cx, cy, cz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
-        if d > -0.9999:
-            rw = 1.0 + d
-            rn = math.sqrt(rw * rw + cx * cx + cy * cy + cz * cz)
-            rw, cx, cy, cz = rw / rn, cx / rn, cy / rn, cz / rn
-            # qr = (rw, c) * q
-            qrw = rw * w - cx * x - cy * y - cz * z
-            qrx = rw * x + cx * w + cy * z - cz * y
-            qry = rw * y - cx * z + cy * w + cz * x
-            qrz = rw * z + cx * y - cy * x + cz * w
-        else:
-            qrw, qrx, qry, qrz = dw, dx, dy, dz
-        # mix: qmix = qr^-1 * qd, keep yaw_w of its yaw part
-        mw = qrw * dw + qrx * dx + qry * dy + qrz * dz
-        mz = qrw * dz - qrx * dy + qry * dx - qrz * dw
-        if mw < 0.0:
-            mw, mz = -mw, -mz
-        mw = 1.0 if mw > 1.0 else mw
-        mz = -1.0 if mz < -1.0 else (1.0 if mz > 1.0 else mz)
-        a = self.yaw_w
-        pw, pz = math.cos(a * math.acos(mw)), math.sin(a * math.asin(mz))
-        # qd' = qr * (pw, 0, 0, pz)
-        sw = qrw * pw - qrz * pz
-        sx = qrx * pw + qry * pz
-        sy = qry * pw - qrx * pz
-        sz = qrz * pw + qrw * pz
-        # error qe = q^-1 * qd'
-        ew = w * sw + x * sx + y * sy + z * sz
-        erx = w * sx - x * sw - y * sz + z * sy
-        ery = w * sy + x * sz - y * sw - z * sx
-        erz = w * sz - x * sy + y * sx - z * sw
-        s = 2.0 if ew >= 0.0 else -2.0
-        rr = self.kr * s * erx
-        rp = self.kp * s * ery
-        ry = self.ky * s * erz / (a if a > 1e-3 else 1e-3)
-        if yaw_rate_ff:
-            # feed-forward about the world z axis, expressed in body axes
-            rr += yaw_rate_ff * ex
-            rp += yaw_rate_ff * ey
-            ry += yaw_rate_ff * ez
-        mr, mp, my = self.max_r, self.max_p, self.max_y
-        rr = -mr if rr < -mr else (mr if rr > mr else rr)
-        rp = -mp if rp < -mp else (mp if rp > mp else rp)
-        ry = -my if ry < -my else (my if ry > my else ry)
-        return (rr, rp, ry)
+@kernel
+def thrust_attitude(tx: float, ty: float, tz: float, yaw: float) -> tuple[float, float, float, float, float]:
+    """PX4's bodyzToAttitude: (quaternion, |thrust|) of the attitude whose body z opposes the thrust."""
+    n = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if n < 1e-6:
+        zx, zy, zz = 0.0, 0.0, 1.0
+    else:
+        zx, zy, zz = -tx / n, -ty / n, -tz / n
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    # y_C = (-sin yaw, cos yaw, 0); body_x = y_C x body_z
+    xx, xy, xz = cy * zz, sy * zz, -sy * zy - cy * zx
+    if zz < 0.0:
+        xx, xy, xz = -xx, -xy, -xz
+    xn = math.sqrt(xx * xx + xy * xy + xz * xz)
+    xx, xy, xz = xx / xn, xy / xn, xz / xn
+    # body_y = body_z x body_x
+    yx, yy, yz = zy * xz - zz * xy, zz * xx - zx * xz, zx * xy - zy * xx
+    qw, qx, qy, qz = dcm_to_quat(xx, yx, zx, xy, yy, zy, xz, yz, zz)
+    return (qw, qx, qy, qz, n)
 
 
-class RateControl:
-    """Body-rate PID with integrator anti-windup driven by the mixer's saturation flags."""
-
-    def __init__(self, params: Params) -> None:
-        self.params = params
-        self._ver = -1
-        self.i = [0.0, 0.0, 0.0]
-        self.prev = (0.0, 0.0, 0.0)
-        self._load()
-
-    def _load(self) -> None:
-        p = self.params
-        self._ver = p.version
-        self.kp = (p["MC_ROLLRATE_P"], p["MC_PITCHRATE_P"], p["MC_YAWRATE_P"])
-        self.ki = (p["MC_ROLLRATE_I"], p["MC_PITCHRATE_I"], p["MC_YAWRATE_I"])
-        self.kd = (p["MC_ROLLRATE_D"], p["MC_PITCHRATE_D"], p["MC_YAWRATE_D"])
-        self.ilim = (p["MC_RR_INT_LIM"], p["MC_PR_INT_LIM"], p["MC_YR_INT_LIM"])
-
-    def reset(self) -> None:
-        self.i = [0.0, 0.0, 0.0]
-
-    def update(
-        self,
-        rates_sp: tuple[float, float, float],
-        rates: tuple[float, float, float],
-        dt: float,
-        sat_pos: tuple[bool, bool, bool] = (False, False, False),
-        sat_neg: tuple[bool, bool, bool] = (False, False, False),
-        integrate: bool = True,
-    ) -> tuple[float, float, float]:
-        if self.params.version != self._ver:
-            self._load()
-        p0, p1, p2 = rates
-        q0, q1, q2 = self.prev
-        e0, e1, e2 = rates_sp[0] - p0, rates_sp[1] - p1, rates_sp[2] - p2
-        (kp0, kp1, kp2), (kd0, kd1, kd2), i = self.kp, self.kd, self.i
-        i0, i1, i2 = i
-        inv = 1.0 / dt if dt > 0.0 else 0.0
-        out = (
-            kp0 * e0 + i0 - kd0 * (p0 - q0) * inv,
-            kp1 * e1 + i1 - kd1 * (p1 - q1) * inv,
-            kp2 * e2 + i2 - kd2 * (p2 - q2) * inv,
-        )
-        if integrate:
-            ki, lim = self.ki, self.ilim
-            for k, e in enumerate((e0, e1, e2)):
-                if not ((sat_pos[k] and e > 0.0) or (sat_neg[k] and e < 0.0)):
-                    v = i[k] + ki[k] * e * dt
-                    i[k] = -lim[k] if v < -lim[k] else (lim[k] if v > lim[k] else v)
-        self.prev = rates
-        return out
-
-
-# PX4 quad-X geometry, motor order as the sensor frame says: (roll, pitch, yaw) coefficients
-# 0 front right CCW (-r, +p, +y), 1 rear left CCW (+r, -p, +y), 2 front left CW (+r, +p, -y), 3 rear right CW (-r, -p, -y)
-QUAD_X = (
-    (-0.707107, 0.707107, 1.0),
-    (0.707107, -0.707107, 1.0),
-    (0.707107, 0.707107, -1.0),
-    (-0.707107, -0.707107, -1.0),
-)
-_K = 0.707107
-
-Sat = tuple[bool, bool, bool]
-
-
-def _max4(a: float, b: float, c: float, d: float) -> float:
-    """``max(a, b, c, d)``: the first of the largest, as the builtin (an argument replaces only a smaller one)."""
-    if b > a:
-        a = b
-    if c > a:
-        a = c
-    return d if d > a else a
-
-
-def _min4(a: float, b: float, c: float, d: float) -> float:
-    """``min(a, b, c, d)``, as the builtin."""
-    if b < a:
-        a = b
-    if c < a:
-        a = c
-    return d if d < a else a
-
-
-def mix_quad_x(
-    roll: float, pitch: float, yaw: float, thrust: float, idle: float = 0.0
-) -> tuple[tuple[float, float, float, float], Sat, Sat]:
-    """Quad-X mixer with saturation handling: roll/pitch first (thrust shifted, then scaled), yaw last.
-
-    Returns (motors in [idle, 1], saturated-positive per axis, saturated-negative per axis); a saturated
-    axis asked for more torque than it got (the rate integrators stop growing that way). Yaw gets only the
-    room that roll, pitch and thrust leave ("yaw gives way first").
-    """
-    a = _K * (pitch - roll)  # motor 0 and, negated, motor 1
-    b = _K * (pitch + roll)  # motor 2 and, negated, motor 3
-    m0, m1, m2, m3 = thrust + a, thrust - a, thrust + b, thrust - b
-    # (max and min written out: the same choices as the builtins, NaN included, without their calls)
-    aa, ab = abs(a), abs(b)
-    span = 2.0 * (ab if ab > aa else aa)
-    room = 1.0 - idle
-    rp_sat = span > room
-    if rp_sat:
-        k = room / span
-        roll *= k
-        pitch *= k
-        a *= k
-        b *= k
-        m0, m1, m2, m3 = thrust + a, thrust - a, thrust + b, thrust - b
-    hi = _max4(m0, m1, m2, m3)
-    lo = _min4(m0, m1, m2, m3)
-    if hi > 1.0:
-        d = hi - 1.0
-        m0, m1, m2, m3 = m0 - d, m1 - d, m2 - d, m3 - d
-    elif lo < idle:
-        d = idle - lo
-        m0, m1, m2, m3 = m0 + d, m1 + d, m2 + d, m3 + d
-    # yaw: +y on motors 0, 1 and -y on motors 2, 3 must keep all four in [idle, 1]
-    ymax = _min4(1.0 - m0, 1.0 - m1, m2 - idle, m3 - idle)
-    ymin = _max4(idle - m0, idle - m1, m2 - 1.0, m3 - 1.0)
-    y = (ymin if yaw < ymin else (ymax if yaw > ymax else yaw)) if ymin <= ymax else 0.0
-    m0, m1, m2, m3 = m0 + y, m1 + y, m2 - y, m3 - y
-    return (
-        (
-            0.0 if m0 < 0.0 else (1.0 if m0 > 1.0 else m0),
-            0.0 if m1 < 0.0 else (1.0 if m1 > 1.0 else m1),
-            0.0 if m2 < 0.0 else (1.0 if m2 > 1.0 else m2),
-            0.0 if m3 < 0.0 else (1.0 if m3 > 1.0 else m3),
-        ),
-        (rp_sat and roll > 0.0, rp_sat and pitch > 0.0, yaw > y + 1e-9),
-        (rp_sat and roll < 0.0, rp_sat and pitch < 0.0, yaw < y - 1e-9),
-    )
+def thrust_to_attitude(thr: tuple[float, float, float], yaw: float) -> tuple[Quat, float]:
+    """PX4's bodyzToAttitude: the attitude whose body z opposes the thrust vector with the given yaw."""
+    qw, qx, qy, qz, n = thrust_attitude(thr[0], thr[1], thr[2], yaw)
+    return (qw, qx, qy, qz), n

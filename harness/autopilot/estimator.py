@@ -11,16 +11,21 @@ offset of the local frame. The local NED frame has its origin where the first go
 (like PX4's EKF origin) unless an origin is given.
 
 ``use_ground_truth`` replaces all of this by the frame's ``truth`` (debugging only).
-Everything is plain float math: it runs every tick for every vehicle.
+It runs every tick for every vehicle: the per-tick part (attitude filter and prediction) is one call of the
+numba-compiled ``predict`` (``harness.core.jit``) over floats and the filter's state array; the GPS and
+barometer corrections (10 and 50 Hz) are plain float math.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
 from harness.core.geo import GeoRef, quat_from_euler
+from harness.core.jit import compiled, floats, kernel
 from harness.fdm.frame import Gps, SensorFrame
 
 _HIST = 64
@@ -30,6 +35,109 @@ GPS_CHECK_NS = 10_000_000_000
 """PX4 EKF2 uses the GPS (and reports a global position) once its checks have passed for 10 s."""
 
 
+@kernel
+def predict(
+    s: np.ndarray,
+    g: np.ndarray,
+    att: bool,
+    slow: bool,
+    w: float,
+    x: float,
+    y: float,
+    z: float,
+    gx: float,
+    gy: float,
+    gz: float,
+    fx: float,
+    fy: float,
+    fz: float,
+    has_mag: bool,
+    bx: float,
+    by: float,
+    bz: float,
+    mag_recent: bool,
+    pn: float,
+    pe: float,
+    pd: float,
+    vn: float,
+    ve: float,
+    vd: float,
+    abn: float,
+    abe: float,
+    abd: float,
+    dt: float,
+) -> tuple[float, float, float, float, float, float, float, float, float, float, float, float, float, float]:
+    """One tick of the filter. If ``att``: the attitude (w, x, y, z) integrated from the gyro (f: accelerometer,
+    b: magnetometer if ``has_mag``) with its corrections and bias learning (faster until ``slow``); then the
+    position and velocity predicted from the accelerometer. ``s``: gyro bias (3), GPS linear acceleration (3),
+    held heading error, mutated; ``g``: ATT_W_ACC, ATT_W_MAG, ATT_W_GYRO_BIAS, declination.
+    Returns (attitude (4), body rates (3), position (3), velocity (3), vertical acceleration)."""
+    p = q_ = r = 0.0
+    if att:
+        # the rotation body -> world R(q), each term formed once (the same products as written out in full)
+        xx, yy, zz = x * x, y * y, z * z
+        xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+        r00, r01, r02 = 1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)
+        r10, r11, r12 = 2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)
+        r20, r21, r22 = 2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)
+        ex = ey = ez = 0.0
+        # accelerometer: measured "up" (specific force) versus estimated up = R^T (g - a_lin) / |.|
+        fn = math.sqrt(fx * fx + fy * fy + fz * fz)
+        if 0.5 * G_M_S2 < fn < 1.5 * G_M_S2:
+            rn, re, rd = s[3], s[4], s[5] - G_M_S2  # world specific force expected: a_lin - g
+            rl = math.sqrt(rn * rn + re * re + rd * rd)
+            rn, re, rd = rn / rl, re / rl, rd / rl
+            # world -> body: R^T v
+            vx = r00 * rn + r10 * re + r20 * rd
+            vy = r01 * rn + r11 * re + r21 * rd
+            vz = r02 * rn + r12 * re + r22 * rd
+            mx, my, mz = fx / fn, fy / fn, fz / fn
+            k = g[0] if slow else 10.0 * g[0]
+            ex = k * (my * vz - mz * vy)
+            ey = k * (mz * vx - mx * vz)
+            ez = k * (mx * vy - my * vx)
+        if has_mag:
+            # field in world: R m; its heading error is held until the next sample (mag is slower than the tick)
+            wn = r00 * bx + r01 * by + r02 * bz
+            we = r10 * bx + r11 * by + r12 * bz
+            if wn * wn + we * we > 1e-6:
+                err = math.atan2(we, wn) - g[3]
+                s[6] = (err + math.pi) % (2.0 * math.pi) - math.pi
+        if mag_recent:
+            # world-z correction -k*err, into body: R^T (0, 0, 1)
+            c = -g[1] * s[6] * (1.0 if slow else 10.0)
+            ex += c * r20
+            ey += c * r21
+            ez += c * r22
+        kb = g[2] * dt
+        b0 = s[0] = s[0] - kb * ex
+        b1 = s[1] = s[1] - kb * ey
+        b2 = s[2] = s[2] - kb * ez
+        p, q_, r = gx - b0, gy - b1, gz - b2
+        ox, oy, oz = p + ex, q_ + ey, r + ez
+        h = 0.5 * dt
+        nw = w + h * (-x * ox - y * oy - z * oz)
+        nx = x + h * (w * ox + y * oz - z * oy)
+        ny = y + h * (w * oy - x * oz + z * ox)
+        nz = z + h * (w * oz + x * oy - y * ox)
+        n = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+        w, x, y, z = nw * n, nx * n, ny * n, nz * n
+    # position and velocity: the accelerometer rotated to NED, gravity removed
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    an = (1 - 2 * (yy + zz)) * fx + 2 * (xy - wz) * fy + 2 * (xz + wy) * fz + abn
+    ae = 2 * (xy + wz) * fx + (1 - 2 * (xx + zz)) * fy + 2 * (yz - wx) * fz + abe
+    ad = 2 * (xz - wy) * fx + 2 * (yz + wx) * fy + (1 - 2 * (xx + yy)) * fz + G_M_S2 + abd
+    h = 0.5 * dt * dt
+    pn += vn * dt + an * h
+    pe += ve * dt + ae * h
+    pd += vd * dt + ad * h
+    return (w, x, y, z, p, q_, r, pn, pe, pd, vn + an * dt, ve + ae * dt, vd + ad * dt, ad)
+
+
+_predict = compiled(predict)
+
+
 class Estimator:
     def __init__(self, params: Params, use_ground_truth: bool = False, origin: GeoRef | None = None) -> None:
         self.params = params
@@ -37,7 +145,9 @@ class Estimator:
         self.ref: GeoRef | None = origin
         self._ref_given = origin is not None
         self.q = (1.0, 0.0, 0.0, 0.0)
-        self.bias = [0.0, 0.0, 0.0]
+        self._s = floats([0.0] * 7)
+        """The filter's own state, mutated by ``predict``: gyro bias (3), linear acceleration from GPS (3),
+        heading error held from the last magnetometer sample."""
         self.rates = (0.0, 0.0, 0.0)
         self.accel_body = (0.0, 0.0, -G_M_S2)
         self.pn = self.pe = self.pd = 0.0
@@ -60,7 +170,6 @@ class Estimator:
         self._ref_alt_n = 0
         self._hist: list[tuple[int, float, float, float, float, float, float]] = []
         self._hist_i = 0
-        self._alin = [0.0, 0.0, 0.0]
         self._alin_tau = 1.0
         """Low-pass time constant of the GPS-measured linear acceleration (GPS velocity noise, differentiated)."""
         self._gps_vel_prev: tuple[int, float, float, float] | None = None
@@ -71,17 +180,16 @@ class Estimator:
         """Until then the attitude corrections run 10x faster (convergence after initialisation)."""
         self.acc_d = 0.0
         """Estimated vertical (down) acceleration, m/s²."""
-        self._mag_err = 0.0
+        self._g = floats([0.0] * 4)
+        """ATT_W_ACC, ATT_W_MAG, ATT_W_GYRO_BIAS, the magnetic declination (rad)."""
         self._ver = -1
         self._load()
 
     def _load(self) -> None:
         p = self.params
         self._ver = p.version
-        self._w_acc = p["ATT_W_ACC"]
-        self._w_mag = p["ATT_W_MAG"]
-        self._w_bias = p["ATT_W_GYRO_BIAS"]
         self._decl = math.radians(p["EKF2_MAG_DECL"])
+        self._g[:] = (p["ATT_W_ACC"], p["ATT_W_MAG"], p["ATT_W_GYRO_BIAS"], self._decl)
         self._tau_gps_p = 2.0 * p["EKF2_GPS_P_NOISE"]
         self._tau_gps_v = 1.0 * p["EKF2_GPS_V_NOISE"]
         self._tau_baro = 2.0 * p["EKF2_BARO_NOISE"]
@@ -89,6 +197,12 @@ class Estimator:
         self._req_eph = p["EKF2_REQ_EPH"]
 
     # ---- properties the rest of the autopilot reads ----
+    @property
+    def bias(self) -> tuple[float, float, float]:
+        """Gyro bias estimate, rad/s."""
+        s = self._s
+        return (float(s[0]), float(s[1]), float(s[2]))
+
     @property
     def alt_amsl_m(self) -> float:
         return (self.ref.alt_m if self.ref is not None else 0.0) - self.pd
@@ -123,7 +237,8 @@ class Estimator:
     # ---- the update ----
     def forget_gps_motion(self) -> None:
         """GPS gone: stop correcting the attitude for the linear acceleration its velocity last showed."""
-        self._alin[0] = self._alin[1] = self._alin[2] = 0.0
+        s = self._s
+        s[3] = s[4] = s[5] = 0.0
 
     def update(self, frame: SensorFrame, dt: float) -> None:
         if self.params.version != self._ver:
@@ -136,19 +251,19 @@ class Estimator:
         self.last_imu_ns = frame.t_ns
         fx, fy, fz = imu.accel_body_m_s2
         self.accel_body = imu.accel_body_m_s2
-        if not self.att_valid:
+        att = self.att_valid
+        if not att:
             fn = math.sqrt(fx * fx + fy * fy + fz * fz)
             if frame.mag is not None and 0.9 * G_M_S2 < fn < 1.1 * G_M_S2:
                 self._init_attitude(fx, fy, fz, frame.mag.field_body_gauss)
                 self._fast_until_ns = frame.t_ns + 2_000_000_000
             self.rates = imu.gyro_body_rad_s
-        else:
-            self._attitude(frame, fx, fy, fz, dt)
-            if not self._settled and frame.t_ns > self._fast_until_ns:
-                # what the accelerometer-bias states learned while the attitude converged is not bias
-                self._settled = True
-                self.abn = self.abe = self.abd = 0.0
-        self._position(frame, fx, fy, fz, dt)
+        elif not self._settled and frame.t_ns > self._fast_until_ns:
+            # what the accelerometer-bias states learned while the attitude converged is not bias (the
+            # attitude step of this tick does not use them: they are cleared before it)
+            self._settled = True
+            self.abn = self.abe = self.abd = 0.0
+        self._predict(frame, att, fx, fy, fz, dt)
 
     def _init_attitude(self, fx: float, fy: float, fz: float, mag: tuple[float, float, float]) -> None:
         roll = math.atan2(-fy, -fz)
@@ -163,83 +278,25 @@ class Estimator:
         self.att_valid = True
         self.last_mag_ns = self._t_ns
 
-    def _attitude(self, frame: SensorFrame, fx: float, fy: float, fz: float, dt: float) -> None:
-        w, x, y, z = self.q
-        gx, gy, gz = frame.imu.gyro_body_rad_s
-        b = self.bias
-        t_ns = self._t_ns
-        slow = t_ns > self._fast_until_ns  # converged: the normal correction weights
-        # the rotation body -> world R(q), each term formed once (the same products as written out in full)
-        xx, yy, zz = x * x, y * y, z * z
-        xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-        r00, r01, r02 = 1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)
-        r10, r11, r12 = 2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)
-        r20, r21, r22 = 2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)
-        ex = ey = ez = 0.0
-        # accelerometer: measured "up" (specific force) versus estimated up = R^T (g - a_lin) / |.|
-        fn = math.sqrt(fx * fx + fy * fy + fz * fz)
-        if 0.5 * G_M_S2 < fn < 1.5 * G_M_S2:
-            an, ae, ad = self._alin
-            rn, re, rd = an, ae, ad - G_M_S2  # world specific force expected: a_lin - g
-            rl = math.sqrt(rn * rn + re * re + rd * rd)
-            rn, re, rd = rn / rl, re / rl, rd / rl
-            # world -> body: R^T v
-            vx = r00 * rn + r10 * re + r20 * rd
-            vy = r01 * rn + r11 * re + r21 * rd
-            vz = r02 * rn + r12 * re + r22 * rd
-            mx, my, mz = fx / fn, fy / fn, fz / fn
-            k = self._w_acc if slow else 10.0 * self._w_acc
-            ex = k * (my * vz - mz * vy)
-            ey = k * (mz * vx - mx * vz)
-            ez = k * (mx * vy - my * vx)
-        mag = frame.mag
-        if mag is not None:
-            self.last_mag_ns = frame.t_ns
-            bx, by, bz = mag.field_body_gauss
-            # field in world: R m; its heading error is held until the next sample (mag is slower than the tick)
-            wn = r00 * bx + r01 * by + r02 * bz
-            we = r10 * bx + r11 * by + r12 * bz
-            if wn * wn + we * we > 1e-6:
-                err = math.atan2(we, wn) - self._decl
-                self._mag_err = (err + math.pi) % (2.0 * math.pi) - math.pi
-        if t_ns - self.last_mag_ns < 500_000_000:
-            # world-z correction -k*err, into body: R^T (0, 0, 1)
-            c = -self._w_mag * self._mag_err * (1.0 if slow else 10.0)
-            ex += c * r20
-            ey += c * r21
-            ez += c * r22
-        kb = self._w_bias * dt
-        b0 = b[0] = b[0] - kb * ex
-        b1 = b[1] = b[1] - kb * ey
-        b2 = b[2] = b[2] - kb * ez
-        p, q_, r = gx - b0, gy - b1, gz - b2
-        self.rates = (p, q_, r)
-        ox, oy, oz = p + ex, q_ + ey, r + ez
-        h = 0.5 * dt
-        nw = w + h * (-x * ox - y * oy - z * oz)
-        nx = x + h * (w * ox + y * oz - z * oy)
-        ny = y + h * (w * oy - x * oz + z * ox)
-        nz = z + h * (w * oz + x * oy - y * ox)
-        n = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-        self.q = (nw * n, nx * n, ny * n, nz * n)
-
-    def _position(self, frame: SensorFrame, fx: float, fy: float, fz: float, dt: float) -> None:
-        w, x, y, z = self.q
-        xx, yy, zz = x * x, y * y, z * z
-        xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-        an = (1 - 2 * (yy + zz)) * fx + 2 * (xy - wz) * fy + 2 * (xz + wy) * fz + self.abn
-        ae = 2 * (xy + wz) * fx + (1 - 2 * (xx + zz)) * fy + 2 * (yz - wx) * fz + self.abe
-        ad = 2 * (xz - wy) * fx + 2 * (yz + wx) * fy + (1 - 2 * (xx + yy)) * fz + G_M_S2 + self.abd
-        self.acc_d = ad
-        h = 0.5 * dt * dt
-        vn, ve, vd = self.vn, self.ve, self.vd
-        self.pn += vn * dt + an * h
-        self.pe += ve * dt + ae * h
-        self.pd += vd * dt + ad * h
-        self.vn = vn + an * dt
-        self.ve = ve + ae * dt
-        self.vd = vd + ad * dt
+    def _predict(self, frame: SensorFrame, att: bool, fx: float, fy: float, fz: float, dt: float) -> None:
+        """The per-tick part in one compiled call (``predict``): the attitude filter if ``att``, then the
+        position and velocity prediction; the history entry for the delayed GPS fusion."""
         t = frame.t_ns
+        gx, gy, gz = frame.imu.gyro_body_rad_s
+        mag = frame.mag
+        if mag is not None and att:
+            self.last_mag_ns = t
+            bx, by, bz = mag.field_body_gauss
+        else:
+            bx = by = bz = 0.0
+        w, x, y, z, p, q, r, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd, self.acc_d = _predict(
+            self._s, self._g, att, t > self._fast_until_ns, *self.q, gx, gy, gz, fx, fy, fz, mag is not None,
+            bx, by, bz, t - self.last_mag_ns < 500_000_000, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd,
+            self.abn, self.abe, self.abd, dt,
+        )  # fmt: skip
+        if att:
+            self.q = (w, x, y, z)
+            self.rates = (p, q, r)
         entry = (t, self.pn, self.pe, self.pd, self.vn, self.ve, self.vd)
         hist = self._hist
         if len(hist) < _HIST:
@@ -316,11 +373,11 @@ class Estimator:
         prev = self._gps_vel_prev
         if prev is not None and 0.0 < (g.measured_at_ns - prev[0]) * 1e-9 < 1.0:
             gdt = (g.measured_at_ns - prev[0]) * 1e-9
-            a = self._alin
+            a = self._s  # the linear acceleration: a[3:6]
             k = 1.0 - math.exp(-gdt / self._alin_tau)
-            a[0] += k * ((vn_g - prev[1]) / gdt - a[0])
-            a[1] += k * ((ve_g - prev[2]) / gdt - a[1])
-            a[2] += k * ((vd_g - prev[3]) / gdt - a[2])
+            a[3] += k * ((vn_g - prev[1]) / gdt - a[3])
+            a[4] += k * ((ve_g - prev[2]) / gdt - a[4])
+            a[5] += k * ((vd_g - prev[3]) / gdt - a[5])
         self._gps_vel_prev = (g.measured_at_ns, vn_g, ve_g, vd_g)
         if not self.pos_valid or dt <= 0.0 or dt > 2.0:
             self.pn, self.pe = n, e

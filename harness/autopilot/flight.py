@@ -10,23 +10,22 @@ import math
 
 from harness.autopilot.api import FlightMode, LandedState
 from harness.autopilot.battery import Battery
-from harness.autopilot.control import (
-    AttitudeControl,
-    PositionControl,
-    RateControl,
-    mix_quad_x,
-    thrust_to_attitude,
-)
+from harness.autopilot.control import PositionControl, thrust_attitude
 from harness.autopilot.estimator import Estimator
 from harness.autopilot.geofence import Geofence
+from harness.autopilot.inner import AttitudeControl, RateControl, inner_loop
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.navigator import Navigator
 from harness.autopilot.params import Params
 from harness.core.geo import GeoRef
+from harness.core.jit import compiled
 from harness.fdm.frame import SensorFrame
 
 _isnan = math.isnan
 ZERO4 = (0.0, 0.0, 0.0, 0.0)
+ZERO3 = (0.0, 0.0, 0.0)
+_inner_loop = compiled(inner_loop)
+_thrust_attitude = compiled(thrust_attitude)
 
 
 class FlightCore:
@@ -50,8 +49,6 @@ class FlightCore:
         self.yaw_hold = 0.0
         self._contact_s = 0.0
         self._landed_s = 0.0
-        self._sat_pos = (False, False, False)
-        self._sat_neg = (False, False, False)
         self._bat_dt = 0.0
         self.pos_every = 2
         """Navigator and position control run every ``pos_every`` ticks (125 Hz at a 250 Hz tick)."""
@@ -70,14 +67,14 @@ class FlightCore:
     def _load(self) -> None:
         p = self.params
         self._ver = p.version
+        self.att_ctl.refresh()
+        self.rate_ctl.refresh()
         self._idle = p["MPC_THR_MIN"] * 0.5
         if p["MPC_THR_HOVER"] != self._hover_param:
             self._hover_param = p["MPC_THR_HOVER"]
             self.hover_thrust = self._hover = self.pos_ctl.hover = self._hover_param
         self._hte = bool(p["MPC_USE_HTE"])
         self._fac = p["THR_MDL_FAC"]
-        a = 1.0 - self._fac  # the thrust model's inverse: thrust = f u^2 + (1 - f) u (constants of _rates_to_motors)
-        self._fac_inv = (a, a * a, 4.0 * self._fac, 2.0 * self._fac)
 
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
         if self.params.version != self._ver:
@@ -114,17 +111,11 @@ class FlightCore:
         if att is not None:
             if on_ground and att.thrust < self._hover * 0.6:
                 return self._idle_out()
-            if att.quat is not None:
-                rates_sp = self.att_ctl.update(est.q, att.quat)
-            else:
-                rates_sp = att.body_rates_rad_s or (0.0, 0.0, 0.0)
-            if att.quat is not None and att.body_rates_rad_s is not None:
-                rates_sp = (
-                    rates_sp[0] + att.body_rates_rad_s[0],
-                    rates_sp[1] + att.body_rates_rad_s[1],
-                    rates_sp[2] + att.body_rates_rad_s[2],
-                )
-            return self._rates_to_motors(rates_sp, att.thrust, dt)
+            # attitude P on the quaternion when there is one, the body rates added (or alone)
+            br = att.body_rates_rad_s
+            return self._inner(
+                att.quat or est.q, att.quat is not None, 0.0, br or ZERO3, br is not None, att.thrust, dt
+            )
         self._pos_dt += dt
         self._pos_n += 1
         if self._pos_n >= self.pos_every or on_ground or self._qd is None:
@@ -149,9 +140,9 @@ class FlightCore:
                 self._yaw_ff = sp.yaw_rate
                 if _isnan(sp.yaw):
                     self.yaw_hold = math.remainder(self.yaw_hold + sp.yaw_rate * pdt, 2.0 * math.pi)
-            self._qd, self._coll = thrust_to_attitude(thr, self.yaw_hold)
-        rates_sp = self.att_ctl.update(est.q, self._qd, self._yaw_ff)
-        return self._rates_to_motors(rates_sp, self._coll, dt)
+            qw, qx, qy, qz, self._coll = _thrust_attitude(thr[0], thr[1], thr[2], self.yaw_hold)
+            self._qd = (qw, qx, qy, qz)
+        return self._inner(self._qd, True, self._yaw_ff, ZERO3, False, self._coll, dt)
 
     def _estimate_hover(self, dt: float) -> None:
         """Hover thrust from the thrust applied and the vertical acceleration it gave (PX4's MPC_USE_HTE)."""
@@ -188,34 +179,24 @@ class FlightCore:
         i = self._idle
         return (i, i, i, i)
 
-    def _rates_to_motors(
-        self, rates_sp: tuple[float, float, float], thrust: float, dt: float
+    def _inner(
+        self,
+        qd: tuple[float, float, float, float],
+        use_att: bool,
+        yaw_ff: float,
+        body_rates: tuple[float, float, float],
+        add_rates: bool,
+        thrust: float,
+        dt: float,
     ) -> tuple[float, float, float, float]:
-        torque = self.rate_ctl.update(
-            rates_sp,
-            self.est.rates,
-            dt,
-            self._sat_pos,
-            self._sat_neg,
-            integrate=self.landed_state != LandedState.ON_GROUND,
-        )
+        """The per-tick cascade (``inner.inner_loop``): attitude setpoint ``qd`` (if ``use_att``) and/or body
+        rates → rate PID → mixer → thrust model, in one compiled call."""
+        att, rate, est = self.att_ctl, self.rate_ctl, self.est  # (their gains refreshed by _load)
         self.collective = thrust
-        m, self._sat_pos, self._sat_neg = mix_quad_x(torque[0], torque[1], torque[2], thrust, self._idle)
-        f = self._fac
-        if f == 1.0:
-            sq = math.sqrt
-            m = (sq(m[0]), sq(m[1]), sq(m[2]), sq(m[3]))
-        elif f > 0.0:
-            # invert thrust = f u^2 + (1 - f) u
-            a, a2, f4, f2 = self._fac_inv
-            sq = math.sqrt
-            m = (
-                (sq(a2 + f4 * m[0]) - a) / f2,
-                (sq(a2 + f4 * m[1]) - a) / f2,
-                (sq(a2 + f4 * m[2]) - a) / f2,
-                (sq(a2 + f4 * m[3]) - a) / f2,
-            )
-        return m
+        return _inner_loop(
+            att.gains, rate.gains, rate.state, use_att, *est.q, *qd, yaw_ff, add_rates, *body_rates, *est.rates,
+            thrust, dt, self.landed_state != LandedState.ON_GROUND, self._idle, self._fac,
+        )  # fmt: skip
 
     def _land_detector(self, dt: float) -> None:
         est = self.est

@@ -1,7 +1,10 @@
 """Sensor models: IMU, magnetometer, barometer and GPS with rates, noise, bias, drift and latency.
 
 Pure per-vehicle state fed with ground truth every tick; all randomness from the vehicle's own seeded
-``numpy.random.Generator``, drawn in a fixed order, so the same seed gives bit-identical streams.
+``numpy.random.Generator``, drawn in a fixed order, so the same seed gives bit-identical streams. The IMU,
+sampled every tick, is one call of the numba-compiled ``imu.imu_sample``, imported when a ``SensorModel`` is
+made (the scenario layer reads ``SensorConfig`` from here without importing numba); the slower sensors are
+plain float math.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.core import jit
 from harness.core.errors import ScenarioError
 from harness.core.geo import EARTH_RADIUS_M, Quat, Vec3
 from harness.fdm.frame import Baro, Gps, Imu, Mag
@@ -127,12 +131,14 @@ class SensorModel:
         self.tick_ns = tick_ns
         self.mag_ned = mag_ned_gauss
         self._noise: list[float] = []
+        self._noise_k: Any = []
+        """The current block of standard normal draws as ``imu_sample`` takes it (``_noise`` as a list)."""
         self._noise_at = 0
         on = 1.0 if cfg.noise else 0.0
         self._on = on
-        self.accel_bias = [on * b for b in cfg.accel_bias_m_s2]
-        self.gyro_bias = [on * b for b in cfg.gyro_bias_rad_s]
-        self.baro_bias_m = on * cfg.baro_bias_m
+        self._s = jit.floats([*(on * b for b in cfg.accel_bias_m_s2), *(on * b for b in cfg.gyro_bias_rad_s), 0.0])
+        """The drifting biases, mutated by ``imu_sample``: accelerometer (3), gyro (3), barometer."""
+        self._s[6] = on * cfg.baro_bias_m
         self._gps_err = [0.0, 0.0, 0.0]
         self._history: collections.deque[tuple[int, float, float, float, Vec3]] = collections.deque()
         """(t_ns, lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s) of the last ticks, as long as the GPS latency."""
@@ -152,6 +158,10 @@ class SensorModel:
         self._gps_b = math.sqrt(1.0 - self._gps_a**2) * on
         # per-tick constants (the same products the formulas below would form every tick)
         self._an, self._gn = cfg.accel_noise_m_s2 * on, cfg.gyro_noise_rad_s * on
+        self._imu_c = jit.floats([self._walk_accel, self._walk_gyro, self._an, self._gn, self._walk_baro])
+        from harness.fdm.imu import imu_sample_entry  # numba only where sensors are stepped
+
+        self._imu_sample = imu_sample_entry
         self._mn = cfg.mag_noise_gauss * on
         self._mb = (on * cfg.mag_bias_gauss[0], on * cfg.mag_bias_gauss[1], on * cfg.mag_bias_gauss[2])
         self._bn = cfg.baro_noise_m * on
@@ -159,12 +169,31 @@ class SensorModel:
         self._eph = max(0.5, cfg.gps_noise_m * 2.0)
         self._epv = max(0.8, cfg.gps_alt_noise_m * 2.0)
 
+    @property
+    def accel_bias(self) -> Vec3:
+        """The accelerometer's bias now (turn-on bias plus random walk), m/s²."""
+        s = self._s
+        return (float(s[0]), float(s[1]), float(s[2]))
+
+    @property
+    def gyro_bias(self) -> Vec3:
+        """The gyro's bias now, rad/s."""
+        s = self._s
+        return (float(s[3]), float(s[4]), float(s[5]))
+
+    @property
+    def baro_bias_m(self) -> float:
+        """The barometer's bias now (turn-on bias plus drift), m."""
+        return float(self._s[6])
+
     def _normals(self, n: int) -> list[float]:
         """The next ``n`` standard normal draws of this vehicle's stream. Drawn from the generator in blocks
         (one numpy call per 4096 values instead of several per tick): same seed, same sequence."""
         at = self._noise_at
         if at + n > len(self._noise):
-            self._noise = self.rng.standard_normal(4096).tolist()
+            block = self.rng.standard_normal(4096)
+            self._noise = block.tolist()
+            self._noise_k = block if jit.ENABLED else self._noise
             at = 0
         self._noise_at = at + n
         return self._noise[at : at + n]
@@ -182,31 +211,16 @@ class SensorModel:
     ) -> tuple[Imu, Mag | None, Baro | None, Gps | None]:
         # the draws of a tick, in this order: 12 (IMU), 1 (baro drift), then 3 (mag), 1 (baro), 6 (GPS) when
         # those sample; a fixed number per sensor keeps the streams aligned
-        noise, at = self._noise, self._noise_at
-        if at + 13 > len(noise):
-            z = self._normals(12)
-            zb = self._normals(1)[0]
+        at = self._noise_at
+        if at + 13 > len(self._noise):
+            z, at = jit.floats([*self._normals(12), *self._normals(1)]), 0
         else:
-            z = noise[at : at + 12]
-            zb = noise[at + 12]
+            z = self._noise_k
             self._noise_at = at + 13
-        ab, gb = self.accel_bias, self.gyro_bias
-        wa, wg = self._walk_accel, self._walk_gyro
-        z0, z1, z2, z3, z4, z5, z6, z7, z8, z9, z10, z11 = z
-        ab0 = ab[0] = ab[0] + wa * z0
-        gb0 = gb[0] = gb[0] + wg * z3
-        ab1 = ab[1] = ab[1] + wa * z1
-        gb1 = gb[1] = gb[1] + wg * z4
-        ab2 = ab[2] = ab[2] + wa * z2
-        gb2 = gb[2] = gb[2] + wg * z5
-        an, gn = self._an, self._gn
-        sf0, sf1, sf2 = specific_force_body_m_s2
-        w0, w1, w2 = rates_body_rad_s
-        imu = Imu(
-            (sf0 + ab0 + an * z6, sf1 + ab1 + an * z7, sf2 + ab2 + an * z8),
-            (w0 + gb0 + gn * z9, w1 + gb1 + gn * z10, w2 + gb2 + gn * z11),
+        a0, a1, a2, g0, g1, g2 = self._imu_sample(
+            z, at, self._s, self._imu_c, *specific_force_body_m_s2, *rates_body_rad_s
         )
-        self.baro_bias_m += self._walk_baro * zb
+        imu = Imu((a0, a1, a2), (g0, g1, g2))
         mag = baro = gps = None
         if t_ns >= self._next_mag:
             self._next_mag += self._mag_period

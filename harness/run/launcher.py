@@ -30,6 +30,7 @@ from typing import Any
 
 from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
+from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError
 from harness.record.sample import VehicleSample, WorldEvent
@@ -97,7 +98,9 @@ class Launcher:
         in_hosts = {v for group in self._autopilot_groups() for v in group}
         if in_hosts:
             (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
-        phys = Physics(physics_cfg, [v for v in range(n) if v not in in_hosts])
+        own = [v for v in range(n) if v not in in_hosts]
+        jit.prefer(len(own) >= 2)  # numba's start-up pays back from two vehicles (harness.core.jit)
+        phys = Physics(physics_cfg, own)
         channel = Channel(
             ChannelConfig(
                 tick_hz=plan.tick_hz,
