@@ -35,6 +35,7 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.runlocal import RunLocalPeers
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
+from harness.core import lifeline
 from harness.core.clock import WALL, Clock
 from harness.core.errors import HarnessError, ScenarioError
 from harness.core.secrets import read_signing_key
@@ -156,6 +157,7 @@ def _physics(path: Path, vehicles: Sequence[int]) -> Physics:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    lifeline.hold_on()  # started by a run (Children): die with it, before anything else
     ap = argparse.ArgumentParser(prog="python -m harness.autopilot.sitl", description=__doc__)
     ap.add_argument("--address", required=True, help="channel address")
     ap.add_argument("--vehicles", required=True, help="comma-separated vehicle indices")

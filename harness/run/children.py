@@ -8,19 +8,8 @@ import signal
 import subprocess
 from pathlib import Path
 
+from harness.core import lifeline
 from harness.core.clock import NS_PER_S, WALL, Clock
-
-
-def _die_with_parent() -> None:
-    """In the child, before exec: own process group, and SIGKILL when the harness dies (even kill -9)."""
-    os.setpgid(0, 0)
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 class Children:
@@ -28,6 +17,10 @@ class Children:
 
     Every child runs in its own process group and is SIGKILLed by the kernel if this process dies; on
     ``stop()`` each group gets SIGTERM, then SIGKILL after ``grace_s``. Nothing outlives the run.
+
+    Each child is a harness entry point that ties itself to this process first thing
+    (:func:`harness.core.lifeline.hold_on`): no ``preexec_fn``, so ``subprocess`` spawns it with ``vfork``
+    instead of copying this whole process (``docs/architecture.md``, start-up).
     """
 
     def __init__(self, run_dir: Path, grace_s: float = 2.0, clock: Clock = WALL) -> None:
@@ -47,7 +40,7 @@ class Children:
         out = (self.run_dir / f"{name}.stdout").open("wb")
         err = (self.run_dir / f"{name}.stderr").open("wb")
         proc = subprocess.Popen(
-            argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env, preexec_fn=_die_with_parent
+            argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=lifeline.tied_env(env), process_group=0
         )
         out.close()
         err.close()
