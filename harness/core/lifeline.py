@@ -51,8 +51,13 @@ def hold_on() -> None:
     has. A no-op in a process not started that way. The variable is removed, so that this process's own
     children (a mission script's) are not tied to the wrong parent."""
     parent = os.environ.pop(PARENT_ENV, None)
-    if parent is None:
-        return
+    if parent is not None and parent.isdigit():
+        tie_to(int(parent))
+
+
+def tie_to(parent: int) -> None:
+    """Die (SIGKILL) when the parent process ``parent`` dies; exit now if it already has (a forked child
+    ties itself so, :mod:`harness.run.forkserver`)."""
     _pdeathsig()
-    if str(os.getppid()) != parent:  # the parent died before the line above: nobody would kill us
+    if os.getppid() != parent:  # the parent died before the line above: nobody would kill us
         os._exit(ORPHANED_EXIT)

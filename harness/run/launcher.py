@@ -136,7 +136,7 @@ class Launcher:
         self._checkpoint.write()
         with (
             ports,
-            Children(plan.out, clock=self.clock) as sup,
+            Children(plan.out, clock=self.clock, fork_preload=swarm.MISSION_PRELOAD) as sup,
         ):  # the block stays this run's until every process has stopped
             try:
                 if plan.progress is not None:
@@ -347,6 +347,7 @@ class Launcher:
                 ],
                 env=env,
             )
+        forked = _mission_count(plan) > 1  # one fork server imports for them all (one: it would only add a hop)
         for i, m in enumerate(plan.missions[: plan.vehicles]):
             if m is None:
                 continue
@@ -357,14 +358,14 @@ class Launcher:
             menv["HARNESS_FIRMWARE"] = fw.value
             if fw is Firmware.ARDUPILOT:  # SERIAL0: a script's tcp:127.0.0.1:5760 is sent here
                 menv["HARNESS_MAVLINK_TCP_PORT"] = str(self._tcp_port(i))
-            sup.start(f"mission-{i}", _mission_argv(address, i, m), env=menv)
+            sup.start(f"mission-{i}", _mission_argv(address, i, m), env=menv, forked=forked)
             pump()
         if plan.swarm_mission is not None:
             team = swarm.swarm_vehicles(plan.vehicles, self.api_port_base, plan.firmware_of, self._tcp_port)
             m = plan.swarm_mission
             name = swarm.peer_name(m.script.name)
             argv = _mission_argv(address, swarm.SWARM_VEHICLE, m, name)
-            sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team))
+            sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team), forked=forked)
 
     def _autopilot_groups(self) -> list[range]:
         """The vehicles of each autopilot process (the first share stays in this process when in-process)."""
