@@ -67,7 +67,7 @@ class Children:
         if forked and argv[:2] == [sys.executable, "-m"]:
             if self._server is None:
                 self._server = ForkServer(
-                    lambda a, fds: self._spawn("forkserver", a, env, fds), self.fork_preload, self.clock
+                    lambda a, e, fds: self._spawn("forkserver", a, e, fds), env, self.fork_preload, self.clock
                 )
                 self.procs["forkserver"] = self._server.proc
             proc = self._server.spawn(name, argv[2], argv[3:], env, out, err)

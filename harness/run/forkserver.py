@@ -11,7 +11,9 @@ against the server's pid), and the fork server to the run (:mod:`harness.core.li
 the run takes all of them. The server reports each child's pid and, once it has reaped it, its exit status.
 
 Protocol over two pipes, one JSON object per line. Requests (run → server):
-``{"name", "module", "argv", "env", "stdout", "stderr", "cwd"}``; replies (server → run):
+``{"name", "module", "argv", "env", "unset", "stdout", "stderr", "cwd"}`` (the child's environment is the
+server's own with ``env`` set and ``unset`` removed: a request stays small, so that a hundred of them fit
+in the pipe before the server has read one); replies (server → run):
 ``{"started": name, "pid": pid}`` and ``{"exited": pid, "code": code}`` (negative: killed by that signal).
 The server exits when the request pipe closes and its last child has been reaped.
 """
@@ -51,7 +53,8 @@ def _run_child(req: dict[str, Any], server: int, fds: Sequence[int]) -> int:
     os.dup2(devnull, 0)
     os.close(devnull)
     os.chdir(req["cwd"])
-    os.environ.clear()
+    for key in req["unset"]:
+        os.environ.pop(key, None)
     os.environ.update(req["env"])
     random.seed()  # as a fresh interpreter: not the server's sequence, shared by every child
     sys.argv = [req["module"], *req["argv"]]
@@ -126,17 +129,20 @@ class ForkServer:
 
     def __init__(
         self,
-        start: Callable[[list[str], tuple[int, ...]], subprocess.Popen[bytes]],
+        start: Callable[[list[str], dict[str, str], tuple[int, ...]], subprocess.Popen[bytes]],
+        env: dict[str, str],
         preload: Sequence[str],
         clock: Clock = WALL,
     ) -> None:
-        """``start(argv, pass_fds)`` starts the server process (``Children`` does, as any other child)."""
+        """``start(argv, env, pass_fds)`` starts the server process (``Children`` does, as any other child)
+        with the environment ``env``."""
         self.clock = clock
+        self._env = dict(env)
         req_r, self._req = os.pipe()
         self._rep, rep_w = os.pipe()
         try:
             argv = [sys.executable, "-m", __name__, str(req_r), str(rep_w), *preload]
-            self.proc = start(argv, (req_r, rep_w))
+            self.proc = start(argv, self._env, (req_r, rep_w))
         finally:
             os.close(req_r)
             os.close(rep_w)
@@ -149,7 +155,9 @@ class ForkServer:
 
     def spawn(self, name: str, module: str, argv: Sequence[str], env: dict[str, str], out: Path, err: Path) -> Forked:
         """``python -m module argv`` as a child of the server, output to ``out`` and ``err``."""
-        req = {"name": name, "module": module, "argv": list(argv), "env": env}
+        base = self._env
+        changed = {k: v for k, v in env.items() if base.get(k) != v}
+        req = {"name": name, "module": module, "argv": list(argv), "env": changed, "unset": sorted(base.keys() - env)}
         req |= {"stdout": str(out), "stderr": str(err), "cwd": os.getcwd()}
         try:
             os.write(self._req, json.dumps(req).encode() + b"\n")

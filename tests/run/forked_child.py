@@ -1,5 +1,5 @@
 """A child for tests/run/test_forkserver.py, run as ``python -m tests.run.forked_child CODE [SLEEP_S]``: it
-prints what it was started with (argv, one environment variable, its process group, cwd) and exits with CODE."""
+prints what it was started with (argv, two environment variables, its process group, cwd) and exits with CODE."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ if __name__ == "__main__":
             {
                 "argv": sys.argv[1:],
                 "env": os.environ.get("FORKED_TEST"),
+                "extra": os.environ.get("EXTRA"),
                 "pgid": os.getpgid(0),
                 "pid": os.getpid(),
                 "cwd": os.getcwd(),

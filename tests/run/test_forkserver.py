@@ -30,7 +30,7 @@ def _argv(*args: str) -> list[str]:
 
 def test_forked_children_run_as_python_dash_m_with_their_own_env_files_and_group(tmp_path: Path) -> None:
     with Children(tmp_path, fork_preload=(CHILD,)) as sup:
-        a = sup.start("a", _argv("0"), _env(tmp_path, "first"), forked=True)
+        a = sup.start("a", _argv("0"), _env(tmp_path, "first") | {"EXTRA": "1"}, forked=True)
         b = sup.start("b", _argv("3", "0.2"), _env(tmp_path, "second"), forked=True)
         assert a.wait(30) == 0 and b.wait(30) == 3
         assert "forkserver" in sup.procs and sup.procs["forkserver"].poll() is None  # one server for both
@@ -39,6 +39,7 @@ def test_forked_children_run_as_python_dash_m_with_their_own_env_files_and_group
     seen = [json.loads((tmp_path / f"{n}.stdout").read_text()) for n in ("a", "b")]
     assert [s["argv"] for s in seen] == [["0"], ["3", "0.2"]]
     assert [s["env"] for s in seen] == ["first", "second"]
+    assert [s["extra"] for s in seen] == ["1", None], "each child has its own environment, not the first one's"
     assert all(s["main"] == "__main__" and s["cwd"] == os.getcwd() for s in seen)
     assert all(s["pgid"] == s["pid"] for s in seen), "each child leads its own process group"
     assert seen[0]["pid"] != seen[1]["pid"] and os.getpid() not in (seen[0]["pid"], seen[1]["pid"])
