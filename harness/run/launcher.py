@@ -97,7 +97,8 @@ class Launcher:
         in_hosts = {v for group in self._autopilot_groups() for v in group}
         if in_hosts:
             (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
-        phys = Physics(physics_cfg, [v for v in range(n) if v not in in_hosts])
+        phys: Any = None
+        """This process's share of the physics: built while the children start (they import meanwhile)."""
         channel = Channel(
             ChannelConfig(
                 tick_hz=plan.tick_hz,
@@ -126,7 +127,11 @@ class Launcher:
             plan.out,
             lambda: (
                 RunResult(
-                    RunStatus.RUNNING, phys.t_ns / NS_PER_S, (clock.now_ns() - wall0) / NS_PER_S, summaries, []
+                    RunStatus.RUNNING,
+                    (phys.t_ns if phys is not None else 0) / NS_PER_S,
+                    (clock.now_ns() - wall0) / NS_PER_S,
+                    summaries,
+                    [],
                 ).to_json()
                 | extra()
             ),
@@ -154,10 +159,12 @@ class Launcher:
                         )
                 if plan.on_view is not None and world.view is not None and world.view.grpc_url:
                     plan.on_view(world.view.grpc_url)
+                # the children first: each takes a while to import and join, this process builds its share meanwhile
+                self._start_children(sup, channel.address, lambda: channel.pump(0.001))
+                phys = Physics(physics_cfg, [v for v in range(n) if v not in in_hosts])
                 if plan.autopilots == AutopilotPlacement.IN_PROCESS:
                     local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
-                self._start_children(sup, channel.address, lambda: channel.pump(0.001))
                 hosts = 2 * len(self._autopilot_groups())  # each also has its clock (a type-1 connection)
                 expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
                 start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
@@ -189,7 +196,7 @@ class Launcher:
                 for handle in local:
                     handle.close()
         wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
-        t_ns = phys.t_ns
+        t_ns = phys.t_ns if phys is not None else 0
         exits = {e.vehicle: e for e in channel.mission_exits}
         swarm_end = swarm.swarm_exit(channel.mission_exits)
         tree.fill_remote(summaries, channel.mission_exits, plan.vehicles)
@@ -201,7 +208,7 @@ class Launcher:
                     status = RunStatus.FAILED
                     message = message or (
                         f"the mission of vehicle {s.id} was still running when the run ended at "
-                        f"{phys.t_ns / NS_PER_S:.1f} s of sim time"
+                        f"{t_ns / NS_PER_S:.1f} s of sim time"
                         if e is None
                         else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
