@@ -120,7 +120,7 @@ class Launcher:
         ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
-        local: list[Any] = []
+        close_local: Callable[[], None] | None = None
         extra = self._summary_extra
         clock = self.clock
         self._checkpoint = Checkpoint(
@@ -163,7 +163,7 @@ class Launcher:
                 self._start_children(sup, channel.address, lambda: channel.pump(0.001))
                 phys = Physics(physics_cfg, [v for v in range(n) if v not in in_hosts])
                 if plan.autopilots == AutopilotPlacement.IN_PROCESS:
-                    local = self._local_autopilots(channel)
+                    close_local = self._local_autopilots(channel)
                     world.attach_autopilots(self._aps)
                 hosts = 2 * len(self._autopilot_groups())  # each also has its clock (a type-1 connection)
                 expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
@@ -192,9 +192,9 @@ class Launcher:
                 status, message = RunStatus.FAILED, f"internal error: {exc!r}"
             finally:
                 channel.close("end of run")
+                if close_local is not None:  # first: the MAVLink thread would compete with the recorders' closing
+                    close_local()
                 world.close()
-                for handle in local:
-                    handle.close()
         wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns if phys is not None else 0
         exits = {e.vehicle: e for e in channel.mission_exits}
@@ -237,14 +237,15 @@ class Launcher:
         else:
             self.paused.set()
 
-    def _local_autopilots(self, channel: Channel) -> list[Any]:
-        """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process."""
+    def _local_autopilots(self, channel: Channel) -> Callable[[], None]:
+        """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process; returns what
+        closes their MAVLink side."""
         from harness.autopilot.autopilot import Autopilot, AutopilotConfig
         from harness.autopilot.mavlink.hub import MavlinkHub
         from harness.autopilot.mavlink.personality import core_param_defaults
         from harness.autopilot.mavlink.runlocal import run_signing
         from harness.autopilot.mavlink.transport import PortsConfig
-        from harness.autopilot.sitl import attach_mavlink, vehicle_ports
+        from harness.autopilot.sitl import attach_mavlink, close_mavlink, vehicle_ports
 
         plan = self.plan
         aps = {
@@ -265,26 +266,24 @@ class Launcher:
             api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
         )
         signing, trust = run_signing(plan.signing_key_file, os.getpid())  # unsigned: only this run's processes
-        hub = MavlinkHub(name="mavlink", clock=self.clock).start()  # one wall-clock thread serves every vehicle
-        handles: list[Any] = []
+        hub = MavlinkHub(name="mavlink", clock=self.clock)  # one wall-clock thread serves every vehicle
+        attached: list[Any] = []
         try:
             for i, ap in aps.items():
                 fw = plan.firmware_of(i)
                 vp = vehicle_ports(
                     ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports, self._tcp_sim_clients
                 )
-                handles.append(attach_mavlink(ap, vp, plan.out, signing, hub, fw, trust))
+                attached.append(attach_mavlink(ap, vp, plan.out, signing, hub, fw, trust))
         except Exception as exc:
-            for h in handles:
-                h.close()
-            hub.stop()
+            close_mavlink(hub, attached)
             if isinstance(exc, ScenarioError):  # a port taken by another simulator: one line, not a traceback
                 raise SimulationError(str(exc)) from None
             raise
-        handles.append(hub)
+        hub.start()  # once every server is in: an add to a running hub waits for its thread
 
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
-        return handles
+        return lambda: close_mavlink(hub, attached)
 
     def _start_children(self, sup: Any, address: str, pump: Callable[[], None] = lambda: None) -> None:
         """Start the run's processes; ``pump`` between missions answers the handshakes of those already up
