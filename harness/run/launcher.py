@@ -168,7 +168,7 @@ class Launcher:
                 hosts = 2 * len(self._autopilot_groups())  # each also has its clock (a type-1 connection)
                 expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
                 start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
-                if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=start_s):
+                if not channel.wait_for(lambda subs: _all_joined(subs, expected, sup), timeout_s=start_s):
                     raise SimulationError(
                         f"only {len(channel.subscribers())} of {expected} processes joined the channel within {start_s:g} s "
                         f"(see the *.stderr files in {plan.out})"
@@ -525,6 +525,14 @@ def _root_address(plan: LaunchPlan) -> str:
     if plan.remote_vehicles or not hasattr(socket, "AF_UNIX"):
         return ChannelConfig.address
     return f"unix://{Path(tempfile.gettempdir()) / f'harness-run-{os.getpid()}-{secrets.token_hex(4)}.sock'}"
+
+
+def _all_joined(subs: list[tuple[str, str]], expected: int, sup: Children) -> bool:
+    """Every process of the run has joined; a child that has exited before then never will: one line now,
+    not a wait for the time-out (a mission that cannot start, a fork server that failed)."""
+    for name, code in sup.poll_exits():
+        raise SimulationError(f"the {name} process exited with {code} before the run started (see {name}.stderr)")
+    return len(subs) >= expected
 
 
 def _mission_argv(address: str, vehicle: int, m: MissionPlan, name: str | None = None) -> list[str]:

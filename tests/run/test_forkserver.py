@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from harness.run.children import Children
 from tests.run.test_run import pids_with_run_dir
 
@@ -79,3 +81,17 @@ def test_a_killed_fork_server_takes_its_children(tmp_path: Path) -> None:
         while pids_with_run_dir(tmp_path) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not pids_with_run_dir(tmp_path), "the server's child outlived it"
+
+
+def test_a_child_that_exits_before_the_run_starts_fails_it_at_once(tmp_path: Path) -> None:
+    from harness.core.errors import SimulationError
+    from harness.run.launcher import _all_joined
+
+    with Children(tmp_path) as sup:
+        sup.start("network", [sys.executable, "-c", "raise SystemExit(3)"], _env(tmp_path, "x"))
+        deadline = time.monotonic() + 30
+        with pytest.raises(SimulationError, match=r"the network process exited with 3 before the run started"):
+            while time.monotonic() < deadline:
+                assert not _all_joined([], 1, sup)
+                time.sleep(0.02)
+        assert time.monotonic() < deadline, "the exit was never noticed"
