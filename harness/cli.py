@@ -23,6 +23,7 @@ from harness.cli_run import (
     terminate_as_interrupt,
     tree_options,
 )
+from harness.core import lifeline
 from harness.core.errors import HarnessError, ScenarioError
 
 if TYPE_CHECKING:
@@ -498,6 +499,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    lifeline.hold_on()  # started by a run (Children): die with it, before anything else
     argv = list(sys.argv[1:] if argv is None else argv)
     script_args: list[str] = []
     if "--" in argv:

@@ -27,7 +27,7 @@ from typing import BinaryIO
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.autopilot.firmware import Firmware, firmware_of
 from harness.autopilot.flightlog import FlightLog
-from harness.autopilot.host import run_autopilots
+from harness.autopilot.host import make_autopilots, run_autopilots
 from harness.autopilot.mavlink.codec import SigningConfig
 from harness.autopilot.mavlink.hub import MavlinkHub
 from harness.autopilot.mavlink.param_store import persist_params
@@ -35,6 +35,7 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.runlocal import RunLocalPeers
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
+from harness.core import lifeline
 from harness.core.clock import WALL, Clock
 from harness.core.errors import HarnessError, ScenarioError
 from harness.core.secrets import read_signing_key
@@ -124,6 +125,14 @@ def attach_mavlink(
     return _Attached(server, tlog, ulog)
 
 
+def close_mavlink(hub: MavlinkHub, attached: Sequence[_Attached]) -> None:
+    """Stop ``hub`` first, then close each vehicle's MAVLink side: a server leaving a running hub waits for
+    its thread (which serves every other vehicle meanwhile), one after the other: seconds for fifty."""
+    hub.stop()
+    for handle in attached:
+        handle.close()
+
+
 def vehicle_ports(
     base: PortsConfig,
     firmware: Firmware,
@@ -156,6 +165,7 @@ def _physics(path: Path, vehicles: Sequence[int]) -> Physics:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    lifeline.hold_on()  # started by a run (Children): die with it, before anything else
     ap = argparse.ArgumentParser(prog="python -m harness.autopilot.sitl", description=__doc__)
     ap.add_argument("--address", required=True, help="channel address")
     ap.add_argument("--vehicles", required=True, help="comma-separated vehicle indices")
@@ -203,40 +213,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     base = PortsConfig(api_port_base=a.api_port_base, api_local_port_base=a.api_local_port_base, gcs_port=a.gcs_port)
     trust = RunLocalPeers(a.trust_run) if a.trust_run else None
-    hub = MavlinkHub().start()
+
+    def config_for(v: int) -> AutopilotConfig:
+        fw = firmware_of(firmwares, v)
+        params = {**core_param_defaults(fw), **overrides.get(v, {})}
+        return AutopilotConfig(vehicle=v, use_ground_truth=a.ground_truth, params=params)
+
+    hub = MavlinkHub()
+    attached: list[_Attached] = []
     try:
-        run_autopilots(
-            a.address,
-            vehicles,
-            config_for=lambda v: AutopilotConfig(
-                vehicle=v,
-                use_ground_truth=a.ground_truth,
-                params={**core_param_defaults(firmware_of(firmwares, v)), **overrides.get(v, {})},
-            ),
-            attach=lambda autopilot: attach_mavlink(
-                autopilot,
-                vehicle_ports(
-                    base,
-                    firmware_of(firmwares, autopilot.vehicle),
-                    a.tcp_port_base,
-                    a.tcp_port_step,
-                    extra,
-                    a.tcp_sim_clients,
-                ),
-                a.run_dir,
-                signing,
-                hub,
-                firmware_of(firmwares, autopilot.vehicle),
-                trust,
-            ),
-            name=a.name,
-            physics=physics,
-        )
+        aps = make_autopilots(vehicles, config_for)
+        for v, autopilot in aps.items():
+            fw = firmware_of(firmwares, v)
+            ports = vehicle_ports(base, fw, a.tcp_port_base, a.tcp_port_step, extra, a.tcp_sim_clients)
+            attached.append(attach_mavlink(autopilot, ports, a.run_dir, signing, hub, fw, trust))
+        hub.start()  # once every server is in: an add to a running hub waits for its thread
+        run_autopilots(a.address, vehicles, autopilots=aps, name=a.name, physics=physics)
     except HarnessError as exc:
         log.error("%s", exc)
         return 1
     finally:
-        hub.stop()
+        close_mavlink(hub, attached)
     return 0
 
 

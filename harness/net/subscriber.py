@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import IO
 
+from harness.core import lifeline
 from harness.core.errors import HarnessError, ScenarioError
 from harness.net.model import NetworkKind, NetworkModel, StepResult, lookahead_ns
 from harness.wire import protocol as p
@@ -88,6 +89,7 @@ def serve(client: ChannelClient, model: NetworkModel, events: IO[str] | None = N
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    lifeline.hold_on()  # started by a run (Children): die with it, before anything else
     ap = argparse.ArgumentParser(prog="python -m harness.net.subscriber", description=__doc__)
     ap.add_argument("--address", required=True)
     ap.add_argument("--model", default="builtin")

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 from urllib.parse import quote
 
+from harness.core import lifeline
 from harness.core.errors import ScenarioError
 from harness.record.sink import INSTALL_HINT, rerun_available
 
@@ -88,16 +89,6 @@ def _viewer_env() -> dict[str, str]:
     return dict(os.environ, RUST_LOG=os.environ.get("RUST_LOG", "warn"))
 
 
-def _die_with_parent() -> None:
-    os.setpgid(0, 0)
-    try:
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 class NativeViewer:
     """The native ``rerun`` viewer as a child process (needs a display)."""
 
@@ -113,7 +104,7 @@ class NativeViewer:
 
     def start(self) -> NativeViewer:
         self.proc = subprocess.Popen(
-            self.argv, stdin=subprocess.DEVNULL, env=_viewer_env(), preexec_fn=_die_with_parent
+            self.argv, stdin=subprocess.DEVNULL, env=_viewer_env(), preexec_fn=lifeline.preexec
         )
         return self
 
@@ -144,7 +135,7 @@ def serve_file_web(rrd: Path, web_port: int | None = None) -> tuple[subprocess.P
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         env=_viewer_env(),
-        preexec_fn=_die_with_parent,
+        preexec_fn=lifeline.preexec,
     )
     connect = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
     return proc, f"http://127.0.0.1:{port}/?url={quote(connect, safe=':/')}"

@@ -6,21 +6,27 @@ import contextlib
 import os
 import signal
 import subprocess
+import sys
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Protocol
 
+from harness.core import lifeline
 from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.run.forkserver import ForkServer
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: own process group, and SIGKILL when the harness dies (even kill -9)."""
-    os.setpgid(0, 0)
-    try:
-        import ctypes
+class Child(Protocol):
+    """What ``Children`` needs of a child: a ``subprocess.Popen``, or one forked by the fork server."""
 
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
+    @property
+    def pid(self) -> int | None: ...
+
+    returncode: int | None
+
+    def poll(self) -> int | None: ...
+
+    def wait(self, timeout: float | None = None) -> int: ...
 
 
 class Children:
@@ -28,14 +34,23 @@ class Children:
 
     Every child runs in its own process group and is SIGKILLed by the kernel if this process dies; on
     ``stop()`` each group gets SIGTERM, then SIGKILL after ``grace_s``. Nothing outlives the run.
+
+    Each child is a harness entry point that ties itself to this process first thing
+    (:func:`harness.core.lifeline.hold_on`): no ``preexec_fn``, so ``subprocess`` spawns it with ``vfork``
+    instead of copying this whole process (``docs/architecture.md``, start-up).
     """
 
-    def __init__(self, run_dir: Path, grace_s: float = 2.0, clock: Clock = WALL) -> None:
+    def __init__(
+        self, run_dir: Path, grace_s: float = 2.0, clock: Clock = WALL, fork_preload: Sequence[str] = ()
+    ) -> None:
+        """``fork_preload``: what the fork server imports before it forks (:meth:`start` with ``forked``)."""
         self.run_dir = run_dir
         self.grace_s = grace_s
         self.clock = clock
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.fork_preload = tuple(fork_preload)
+        self.procs: dict[str, Child] = {}
         self._reported: set[str] = set()
+        self._server: ForkServer | None = None
 
     def __enter__(self) -> Children:
         return self
@@ -43,31 +58,56 @@ class Children:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    def start(self, name: str, argv: list[str], env: dict[str, str]) -> subprocess.Popen[bytes]:
-        out = (self.run_dir / f"{name}.stdout").open("wb")
-        err = (self.run_dir / f"{name}.stderr").open("wb")
-        proc = subprocess.Popen(
-            argv, stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env, preexec_fn=_die_with_parent
-        )
-        out.close()
-        err.close()
+    def start(self, name: str, argv: list[str], env: dict[str, str], forked: bool = False) -> Child:
+        """Start ``argv`` (a harness entry point: it calls ``lifeline.hold_on`` first thing). ``forked``: a
+        ``python -m MODULE ...`` command is forked from the run's fork server instead (started with the
+        first such child), which has imported ``fork_preload`` already: no interpreter start-up, no imports."""
+        out, err = self.run_dir / f"{name}.stdout", self.run_dir / f"{name}.stderr"
+        proc: Child
+        if forked and argv[:2] == [sys.executable, "-m"]:
+            if self._server is None:
+                self._server = ForkServer(
+                    lambda a, e, fds: self._spawn("forkserver", a, e, fds), env, self.fork_preload, self.clock
+                )
+                self.procs["forkserver"] = self._server.proc
+            proc = self._server.spawn(name, argv[2], argv[3:], env, out, err)
+        else:
+            proc = self._spawn(name, argv, env)
         self.procs[name] = proc
         return proc
+
+    def _spawn(
+        self, name: str, argv: list[str], env: dict[str, str], pass_fds: tuple[int, ...] = ()
+    ) -> subprocess.Popen[bytes]:
+        with (self.run_dir / f"{name}.stdout").open("wb") as out, (self.run_dir / f"{name}.stderr").open("wb") as err:
+            return subprocess.Popen(
+                argv,
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=err,
+                env=lifeline.tied_env(env),
+                process_group=0,
+                pass_fds=pass_fds,
+            )
 
     def poll_exits(self) -> list[tuple[str, int]]:
         """Children that exited since the last call: (name, exit code; negative = killed by signal)."""
         out = []
         for name, proc in self.procs.items():
-            if name not in self._reported and proc.poll() is not None:
+            if name not in self._reported and (code := proc.poll()) is not None:
                 self._reported.add(name)
-                out.append((name, proc.returncode))
+                out.append((name, code))
         return out
 
     def stop(self) -> None:
+        server = None
+        if self._server is not None:
+            self._server.close()  # no more forks: it reports its children's ends and exits after the last
+            server = self._server.proc
         live = [p for p in self.procs.values() if p.poll() is None]
         for proc in live:
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(proc.pid, signal.SIGTERM)
+            if proc is not server:
+                _signal_group(proc, signal.SIGTERM)
         deadline = self.clock.now_ns() + int(self.grace_s * NS_PER_S)
         for proc in live:
             left = max(0.0, (deadline - self.clock.now_ns()) / NS_PER_S)
@@ -76,6 +116,12 @@ class Children:
             except subprocess.TimeoutExpired:
                 pass
         for proc in self.procs.values():
-            with contextlib.suppress(ProcessLookupError, PermissionError):
-                os.killpg(proc.pid, signal.SIGKILL)  # the group: grandchildren such as mavsdk_server too
+            _signal_group(proc, signal.SIGKILL)  # the group: grandchildren such as mavsdk_server too
             proc.wait()
+
+
+def _signal_group(proc: Child, sig: int) -> None:
+    pid = proc.pid
+    if pid is not None:  # None: a fork the server never made (it dies with the server)
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(pid, sig)

@@ -98,9 +98,8 @@ class Launcher:
         in_hosts = {v for group in self._autopilot_groups() for v in group}
         if in_hosts:
             (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
-        own = [v for v in range(n) if v not in in_hosts]
-        jit.prefer(len(own) >= 2)  # numba's start-up pays back from two vehicles (harness.core.jit)
-        phys = Physics(physics_cfg, own)
+        phys: Any = None
+        """This process's share of the physics: built while the children start (they import meanwhile)."""
         channel = Channel(
             ChannelConfig(
                 tick_hz=plan.tick_hz,
@@ -122,14 +121,18 @@ class Launcher:
         ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
-        local: list[Any] = []
+        close_local: Callable[[], None] | None = None
         extra = self._summary_extra
         clock = self.clock
         self._checkpoint = Checkpoint(
             plan.out,
             lambda: (
                 RunResult(
-                    RunStatus.RUNNING, phys.t_ns / NS_PER_S, (clock.now_ns() - wall0) / NS_PER_S, summaries, []
+                    RunStatus.RUNNING,
+                    (phys.t_ns if phys is not None else 0) / NS_PER_S,
+                    (clock.now_ns() - wall0) / NS_PER_S,
+                    summaries,
+                    [],
                 ).to_json()
                 | extra()
             ),
@@ -139,7 +142,7 @@ class Launcher:
         self._checkpoint.write()
         with (
             ports,
-            Children(plan.out, clock=self.clock) as sup,
+            Children(plan.out, clock=self.clock, fork_preload=swarm.MISSION_PRELOAD) as sup,
         ):  # the block stays this run's until every process has stopped
             try:
                 if plan.progress is not None:
@@ -157,14 +160,18 @@ class Launcher:
                         )
                 if plan.on_view is not None and world.view is not None and world.view.grpc_url:
                     plan.on_view(world.view.grpc_url)
-                if plan.autopilots == AutopilotPlacement.IN_PROCESS:
-                    local = self._local_autopilots(channel)
-                    world.attach_autopilots(self._aps)
+                # the children first: each takes a while to import and join, this process builds its share meanwhile
                 self._start_children(sup, channel.address, lambda: channel.pump(0.001))
+                own = [v for v in range(n) if v not in in_hosts]
+                jit.prefer(len(own) >= 2)  # numba's start-up pays back from two vehicles (harness.core.jit)
+                phys = Physics(physics_cfg, own)
+                if plan.autopilots == AutopilotPlacement.IN_PROCESS:
+                    close_local = self._local_autopilots(channel)
+                    world.attach_autopilots(self._aps)
                 hosts = 2 * len(self._autopilot_groups())  # each also has its clock (a type-1 connection)
                 expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
                 start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
-                if not channel.wait_for(lambda subs: len(subs) >= expected, timeout_s=start_s):
+                if not channel.wait_for(lambda subs: _all_joined(subs, expected, sup), timeout_s=start_s):
                     raise SimulationError(
                         f"only {len(channel.subscribers())} of {expected} processes joined the channel within {start_s:g} s "
                         f"(see the *.stderr files in {plan.out})"
@@ -188,11 +195,11 @@ class Launcher:
                 status, message = RunStatus.FAILED, f"internal error: {exc!r}"
             finally:
                 channel.close("end of run")
+                if close_local is not None:  # first: the MAVLink thread would compete with the recorders' closing
+                    close_local()
                 world.close()
-                for handle in local:
-                    handle.close()
         wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
-        t_ns = phys.t_ns
+        t_ns = phys.t_ns if phys is not None else 0
         exits = {e.vehicle: e for e in channel.mission_exits}
         swarm_end = swarm.swarm_exit(channel.mission_exits)
         tree.fill_remote(summaries, channel.mission_exits, plan.vehicles)
@@ -204,7 +211,7 @@ class Launcher:
                     status = RunStatus.FAILED
                     message = message or (
                         f"the mission of vehicle {s.id} was still running when the run ended at "
-                        f"{phys.t_ns / NS_PER_S:.1f} s of sim time"
+                        f"{t_ns / NS_PER_S:.1f} s of sim time"
                         if e is None
                         else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
@@ -233,14 +240,15 @@ class Launcher:
         else:
             self.paused.set()
 
-    def _local_autopilots(self, channel: Channel) -> list[Any]:
-        """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process."""
+    def _local_autopilots(self, channel: Channel) -> Callable[[], None]:
+        """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process; returns what
+        closes their MAVLink side."""
         from harness.autopilot.autopilot import Autopilot, AutopilotConfig
         from harness.autopilot.mavlink.hub import MavlinkHub
         from harness.autopilot.mavlink.personality import core_param_defaults
         from harness.autopilot.mavlink.runlocal import run_signing
         from harness.autopilot.mavlink.transport import PortsConfig
-        from harness.autopilot.sitl import attach_mavlink, vehicle_ports
+        from harness.autopilot.sitl import attach_mavlink, close_mavlink, vehicle_ports
 
         plan = self.plan
         aps = {
@@ -261,26 +269,24 @@ class Launcher:
             api_port_base=plan.api_remote_base, api_local_port_base=self.api_port_base, gcs_port=self.gcs_port
         )
         signing, trust = run_signing(plan.signing_key_file, os.getpid())  # unsigned: only this run's processes
-        hub = MavlinkHub(name="mavlink", clock=self.clock).start()  # one wall-clock thread serves every vehicle
-        handles: list[Any] = []
+        hub = MavlinkHub(name="mavlink", clock=self.clock)  # one wall-clock thread serves every vehicle
+        attached: list[Any] = []
         try:
             for i, ap in aps.items():
                 fw = plan.firmware_of(i)
                 vp = vehicle_ports(
                     ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports, self._tcp_sim_clients
                 )
-                handles.append(attach_mavlink(ap, vp, plan.out, signing, hub, fw, trust))
+                attached.append(attach_mavlink(ap, vp, plan.out, signing, hub, fw, trust))
         except Exception as exc:
-            for h in handles:
-                h.close()
-            hub.stop()
+            close_mavlink(hub, attached)
             if isinstance(exc, ScenarioError):  # a port taken by another simulator: one line, not a traceback
                 raise SimulationError(str(exc)) from None
             raise
-        handles.append(hub)
+        hub.start()  # once every server is in: an add to a running hub waits for its thread
 
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
-        return handles
+        return lambda: close_mavlink(hub, attached)
 
     def _start_children(self, sup: Any, address: str, pump: Callable[[], None] = lambda: None) -> None:
         """Start the run's processes; ``pump`` between missions answers the handshakes of those already up
@@ -350,6 +356,7 @@ class Launcher:
                 ],
                 env=env,
             )
+        forked = _mission_count(plan) > 1  # one fork server imports for them all (one: it would only add a hop)
         for i, m in enumerate(plan.missions[: plan.vehicles]):
             if m is None:
                 continue
@@ -360,14 +367,14 @@ class Launcher:
             menv["HARNESS_FIRMWARE"] = fw.value
             if fw is Firmware.ARDUPILOT:  # SERIAL0: a script's tcp:127.0.0.1:5760 is sent here
                 menv["HARNESS_MAVLINK_TCP_PORT"] = str(self._tcp_port(i))
-            sup.start(f"mission-{i}", _mission_argv(address, i, m), env=menv)
+            sup.start(f"mission-{i}", _mission_argv(address, i, m), env=menv, forked=forked)
             pump()
         if plan.swarm_mission is not None:
             team = swarm.swarm_vehicles(plan.vehicles, self.api_port_base, plan.firmware_of, self._tcp_port)
             m = plan.swarm_mission
             name = swarm.peer_name(m.script.name)
             argv = _mission_argv(address, swarm.SWARM_VEHICLE, m, name)
-            sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team))
+            sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team), forked=forked)
 
     def _autopilot_groups(self) -> list[range]:
         """The vehicles of each autopilot process (the first share stays in this process when in-process)."""
@@ -525,6 +532,14 @@ def _root_address(plan: LaunchPlan) -> str:
     if sys.platform == "linux":
         return f"unix://@{name}"
     return f"unix://{Path(tempfile.gettempdir()) / f'{name}.sock'}"
+
+
+def _all_joined(subs: list[tuple[str, str]], expected: int, sup: Children) -> bool:
+    """Every process of the run has joined; a child that has exited before then never will: one line now,
+    not a wait for the time-out (a mission that cannot start, a fork server that failed)."""
+    for name, code in sup.poll_exits():
+        raise SimulationError(f"the {name} process exited with {code} before the run started (see {name}.stderr)")
+    return len(subs) >= expected
 
 
 def _mission_argv(address: str, vehicle: int, m: MissionPlan, name: str | None = None) -> list[str]:

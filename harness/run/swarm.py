@@ -102,6 +102,11 @@ def swarm_env(env: Mapping[str, str], vehicles: Sequence[SwarmVehicle]) -> dict[
     return out
 
 
+MISSION_PRELOAD = ("harness.cli", "harness.simclock.mission", "harness.simclock.udp")
+"""What a mission process imports before it runs its script: the fork server imports it once for all
+(``Children(fork_preload=...)``, ``harness/run/forkserver.py``)."""
+
+
 def mission_argv(
     python: str, address: str, vehicle: int, script: Path, args: Sequence[str], name: str | None = None
 ) -> list[str]:

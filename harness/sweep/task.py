@@ -10,7 +10,6 @@ gets SIGTERM (``harness run`` stops its children and writes its summary), then S
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import os
 import shutil
@@ -19,11 +18,12 @@ import socket
 import subprocess
 import sys
 import threading
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from harness.core import lifeline
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.run.result import RunStatus
 from harness.sweep.results import FINISHED, row_from_run_dir
@@ -121,7 +121,12 @@ def _run(job: RunJob, clock: Clock) -> dict[str, Any]:
     env = dict(os.environ, HARNESS_RUN_DIR=str(run_dir))
     with (run_dir / "harness-run.stdout").open("wb") as out, (run_dir / "harness-run.stderr").open("wb") as err:
         proc = subprocess.Popen(
-            job.argv(), stdin=subprocess.DEVNULL, stdout=out, stderr=err, env=env, preexec_fn=_own_group_die_with_us()
+            job.argv(),
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=err,
+            env=lifeline.tied_env(env),  # harness run ties itself to this thread first thing (PR_SET_PDEATHSIG)
+            process_group=0,  # its own group: stopped as a group; Ctrl-C at a terminal does not reach it
         )
     status: RunStatus | None = None
     reason = ""
@@ -241,26 +246,3 @@ def _last_line(path: Path) -> str:
     except OSError:
         return "(no stderr)"
     return lines[-1][-300:] if lines else "(stderr empty)"
-
-
-def _own_group_die_with_us() -> Callable[[], None]:
-    """``preexec_fn`` for the run: its own process group (so it is stopped as a group, and Ctrl-C at a
-    terminal does not reach it directly) and SIGKILL when the thread that started it dies.
-
-    libc's ``prctl`` is looked up here, in the parent, so the child only makes the call (no dlopen after fork
-    in a threaded process)."""
-    prctl: Any = None
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        pass
-    parent = os.getpid()
-
-    def child() -> None:
-        os.setpgid(0, 0)
-        if prctl is not None:
-            prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-            if os.getppid() != parent:  # the parent died before prctl took effect
-                os._exit(1)
-
-    return child

@@ -81,3 +81,30 @@ def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_
             rrd = read_rrd(out / "world.rrd")
         times = rrd["/world/vehicle/0"]["sim_time"]
         assert times and max(times) >= summary["sim_time_s"] - 2.0, (max(times or [0]), summary["sim_time_s"])
+
+
+def test_kill_9_right_after_the_children_started_leaves_no_process(tmp_path: Path) -> None:
+    """The children tie themselves to the run after they start (no preexec_fn): killed before or while they
+    do, not one of them (nor anything they started) survives."""
+    out = tmp_path / "run"
+    argv = ["run", "--vehicles", "3", "--workers", "2", "--network", "builtin", "--mission", str(HOVER)]
+    proc = harness(*argv, "--out", str(out), "--speed", "2", "--", "300")
+    try:
+        # an autopilot host, the network and three missions: kill as soon as all five exist
+        deadline = time.monotonic() + 120
+        while len(started := pids_with_run_dir(out)) < 5 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.005)
+        assert len(started) >= 5, started
+        proc.send_signal(signal.SIGKILL)
+        proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    gone = time.monotonic() + 5.0
+    while pids_with_run_dir(out) and time.monotonic() < gone:
+        time.sleep(0.1)
+    assert not pids_with_run_dir(out), "every child of the killed run is gone"
+    raw = json.loads((out / "summary.json").read_text())
+    assert raw["status"] == "running" and raw["sim_time_s"] == 0.0, "killed before the first tick"
