@@ -13,11 +13,13 @@ With ``--firmware ardupilot`` the vehicles present the ArduCopter personality an
 ``missions/hover_dronekit.py`` (the same flight and beacons with DroneKit over SERIAL0, TCP) instead.
 
 Figures per size:
-- RTF: sim time / wall time of the whole run, as ``summary.json`` reports it (start-up included);
+- RTF: sim time / wall time of the whole run, as ``summary.json`` reports it (start-up included); with
+  ``--repeat`` the median over the runs (of an even count, the mean of the middle two);
 - flight RTF: the same from the first vehicle leaving the ground to the last one landing (from the tick
   timing in ``world.mcap``): the rate while everything flies, without MAVSDK's start-up on the ground;
-- CPU seconds per process class (read from /proc while the run goes): ``harness run`` itself, the mission
-  processes, their ``mavsdk_server`` processes, the network process.
+- CPU seconds per process class (read from /proc while the run goes, of the median run): ``harness run``
+  itself (the root, with its own share of vehicles), the autopilot hosts (``--workers``), the mission
+  processes (and the fork server they are forked from), their ``mavsdk_server`` processes, the network process.
 
 Targets (issue 7, 2-core machine): >= 30x for 1 vehicle, >= 3x for 10, >= 0.5x for 50.
 """
@@ -27,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -59,8 +62,10 @@ def _kind(pid: int, root: int) -> str:
         return ""
     if "mavsdk_server" in cmd:
         return "mavsdk_server"
-    if " mission " in cmd:
+    if " mission " in cmd or "harness.run.forkserver" in cmd:  # missions are forked from the run's fork server
         return "missions"
+    if "harness.autopilot.sitl" in cmd:
+        return "hosts"
     if "net.subscriber" in cmd:
         return "network"
     return "other" if cmd else ""
@@ -254,7 +259,7 @@ def main() -> int:
     )
     print(
         f"{'view':>5} {'wk':>4} {'vehicles':>8} {'sim s':>7} {'wall s':>7} {'RTF':>7} {'flight':>7} {'target':>7} {'ok':>3} "
-        f"{'bare':>7} {'eff.':>5}   CPU s: harness run / missions / mavsdk_server / network"
+        f"{'bare':>7} {'eff.':>5}   CPU s: harness run / hosts / missions / mavsdk_server / network"
     )
     for n in a.sizes:
         by_setting: dict[tuple[str, str, str], list[Result]] = {s: [] for s in settings}
@@ -272,13 +277,15 @@ def report(setting: str, n: int, runs: list[Result], repeat: int, bare: float) -
     """One line: the median run, and its efficiency = its RTF / the RTF of ``n`` bare JSBSim instances
     (``bare_jsbsim.py``), measured in the same session (machines here differ ~2.5x in speed; the ratio less)."""
     r = runs[len(runs) // 2]
+    rtf = statistics.median(x.rtf for x in runs)  # of an even count: the mean of the middle two
+    flight = statistics.median(x.flight_rtf for x in runs)
     spread = "  (runs: " + ", ".join(f"{x.rtf:.2f}" for x in runs) + ")" if repeat > 1 else ""
     cpu = r.cpu
     print(
-        f"{setting} {n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {r.rtf:>6.2f}x {r.flight_rtf:>6.2f}x "
-        f"{TARGETS.get(n, 0.0):>6.1f}x {int(all(x.ok for x in runs)):>3} {bare:>6.2f}x {r.rtf / bare:>5.3f}   "
-        f"{cpu.get('harness run', 0):.1f} / {cpu.get('missions', 0):.1f} / {cpu.get('mavsdk_server', 0):.1f} / "
-        f"{cpu.get('network', 0):.1f}{spread}",
+        f"{setting} {n:>8} {r.sim_s:>7.1f} {r.wall_s:>7.1f} {rtf:>6.2f}x {flight:>6.2f}x "
+        f"{TARGETS.get(n, 0.0):>6.1f}x {int(all(x.ok for x in runs)):>3} {bare:>6.2f}x {rtf / bare:>5.3f}   "
+        f"{cpu.get('harness run', 0):.1f} / {cpu.get('hosts', 0):.1f} / {cpu.get('missions', 0):.1f} / "
+        f"{cpu.get('mavsdk_server', 0):.1f} / {cpu.get('network', 0):.1f}{spread}",
         flush=True,
     )
 
