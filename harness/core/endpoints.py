@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 
 PX4_API_BASE = 14580
@@ -29,6 +30,10 @@ CONNECT_TCP_PORTS = frozenset({5760})
 LISTEN_HELLO = b"HARNESS-LISTEN\n"
 """Datagram a script's redirected listening socket sends its vehicle: 'send me what you send your mission'
 (a script that only listens, like pymavlink's ``udpin:`` before it has sent anything, is heard this way)."""
+
+LISTEN_HELLO_WALL = b"HARNESS-LISTEN-WALL\n"
+"""Datagram a mission's runtime sends its vehicle from the port its MAVSDK will listen on (``mavsdk_url``):
+'greet this port with heartbeats until it answers' (then it is a peer like any that spoke first)."""
 
 SETTLE_PREFIX = b"HARNESS-SETTLE "
 """Datagram a mission's runtime sends its vehicle after the script's MAVLink: the vehicle echoes it once it
@@ -79,21 +84,26 @@ def tcp_destination(host: object, port: int, ep: VehicleEndpoints) -> tuple[str,
     return None
 
 
-def mavsdk_url(url: str, ep: VehicleEndpoints) -> str:
-    """A MAVSDK connection URL pointed at the vehicle (``udpin://0.0.0.0:14540`` → ``udpout://127.0.0.1:P``).
+def mavsdk_url(url: str, ep: VehicleEndpoints, listen_port: Callable[[], int] | None = None) -> str:
+    """A MAVSDK connection URL for the vehicle (``udpin://0.0.0.0:14540`` → ``udpin://127.0.0.1:L``).
 
-    The listening forms become ``udpout`` to the vehicle's port: MAVSDK then sends its heartbeat there and the
-    vehicle answers it (and only it). Other URLs (serial, other hosts and ports) are left as they are.
+    The listening forms and ``udpout`` to the standard ports become ``udpin`` on a port ``L`` that
+    ``listen_port`` reserved and announced to the vehicle (:data:`LISTEN_HELLO_WALL`): the vehicle sends
+    there, MAVSDK listens there. Not ``udpout``: MAVSDK's ``udpout`` binds port 0 with ``SO_REUSEADDR``, and
+    Linux gives such a socket a port another one already holds — two missions of a swarm then share a port
+    and one hears the other's vehicle (``docs/tree.md``). Without ``listen_port``: ``udpout`` to the
+    vehicle's port. Other URLs (serial, other hosts and ports) are left as they are.
     """
     m = _URL.match(url)
     if m is None:
         return url
     scheme, host, port_text = m.group("scheme"), m.group("host").strip("[]"), m.group("port")
     port = int(port_text) if port_text else None
-    if scheme in ("udp", "udpin") and (port is None or udp_listen_redirected(host, port)):
-        return f"udpout://{ep.host}:{ep.udp_port}"
-    if scheme == "udpout" and port is not None and udp_destination(host, port, ep):
-        return f"udpout://{ep.host}:{ep.udp_port}"
+    to_vehicle = (scheme in ("udp", "udpin") and (port is None or udp_listen_redirected(host, port))) or (
+        scheme == "udpout" and port is not None and udp_destination(host, port, ep) is not None
+    )
+    if to_vehicle:
+        return f"udpin://127.0.0.1:{listen_port()}" if listen_port else f"udpout://{ep.host}:{ep.udp_port}"
     if scheme in ("tcp", "tcpout") and port is not None and tcp_destination(host, port, ep):
         return f"tcpout://{ep.host}:{ep.tcp_port}"
     return url

@@ -95,7 +95,7 @@ def _patch_grpc(ep: VehicleEndpoints | None) -> None:
 
     async def connect(self: Any, system_address: str | None = None) -> Any:
         url = system_address or "udpin://0.0.0.0:14540"
-        url = mavsdk_url(url, ep) if ep is not None else url
+        url = _for_vehicle(url, ep)
         log.info("mavsdk (gRPC API): connecting to %s", url)
         rt = current()
         if rt is None or not rt._tracked():
@@ -183,7 +183,7 @@ def _patch_native(ep: VehicleEndpoints | None) -> None:
 
 def _wrap_connection(orig: Callable[..., Any], ep: VehicleEndpoints | None) -> Callable[..., Any]:
     def rewrite(url: str) -> str:
-        return mavsdk_url(url, ep) if ep is not None else url
+        return _for_vehicle(url, ep)
 
     import inspect
 
@@ -224,3 +224,12 @@ def install(script: Path, ep: VehicleEndpoints | None, api: MavsdkApi | None = N
         _patch_native(ep)
         return MavsdkApi.NATIVE
     return MavsdkApi.NONE
+
+
+def _for_vehicle(url: str, ep: VehicleEndpoints | None) -> str:
+    """``url`` as MAVSDK is to use it in a run: listening on a port announced to the mission's vehicle."""
+    if ep is None:
+        return url
+    from harness.simclock.simsocket import announce_listen_port
+
+    return mavsdk_url(url, ep, lambda: announce_listen_port(ep))

@@ -27,6 +27,7 @@ from typing import Any, TypeVar
 from harness.core.clock import NS_PER_S, WALL
 from harness.core.endpoints import (
     LISTEN_HELLO,
+    LISTEN_HELLO_WALL,
     SETTLE_PREFIX,
     VehicleEndpoints,
     tcp_destination,
@@ -143,6 +144,9 @@ class SimSocket(_original_socket):
             and isinstance(address, tuple)
             and udp_listen_redirected(address[0], int(address[1]))
         ):
+            # pymavlink sets SO_REUSEADDR on a listening socket; Linux may then hand port 0 a port another such
+            # socket holds (two missions would share it): bind the free port without it
+            self.setsockopt(_socket.SOL_SOCKET, _socket.SO_REUSEADDR, 0)
             super().bind(("127.0.0.1", 0))
             super().sendto(LISTEN_HELLO, (ep.host, ep.udp_port))
             self._mark_mavlink()
@@ -271,3 +275,16 @@ def install(rt: SimRuntime, ep: VehicleEndpoints | None, cls: type[SimSocket] = 
 def uninstall() -> None:
     INSTALLED.sockets = INSTALLED.endpoints = None
     _socket.socket = _original_socket  # type: ignore[misc]
+
+
+def announce_listen_port(ep: VehicleEndpoints) -> int:
+    """A loopback UDP port for a MAVSDK connection to listen on (``endpoints.mavsdk_url``), announced to the
+    vehicle (``LISTEN_HELLO_WALL``). Reserved by a socket without ``SO_REUSEADDR``, which no port-0 bind can be
+    given while it holds it, and freed just before MAVSDK binds it."""
+    sock = _original_socket(_socket.AF_INET, _socket.SOCK_DGRAM)
+    try:
+        sock.bind(("127.0.0.1", 0))
+        sock.sendto(LISTEN_HELLO_WALL, (ep.host, ep.udp_port))
+        return int(sock.getsockname()[1])
+    finally:
+        sock.close()

@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import itertools
 import math
+import socket
 import struct
+import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import FlightMode
 from harness.autopilot.mavlink.telemetry import SENSOR_GPS, SENSOR_GYRO, SENSOR_PREARM
-from harness.autopilot.mavlink.transport import DATAGRAM_MAX, pack_frames
+from harness.autopilot.mavlink.transport import DATAGRAM_MAX, GREET_NS, pack_frames
 from harness.autopilot.mavlink.version import CAPABILITIES
+from harness.core.endpoints import LISTEN_HELLO_WALL
 from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
@@ -293,3 +296,40 @@ def test_pack_frames_fills_datagrams_in_order_and_never_splits_a_frame() -> None
     assert [len(d) for d, _ in packed] == [1400, 280, 1500, 10]
     assert b"".join(d for d, _ in packed) == b"".join(frames)
     assert list(pack_frames([b"x"])) == [(b"x", 1)]
+
+
+def test_an_announced_mavsdk_port_is_greeted_until_it_answers(gcs: Gcs, idle_rig: Rig) -> None:
+    """A mission's MAVSDK listens on a port its runtime announced (``LISTEN_HELLO_WALL``; MAVSDK's own
+    ``udpout`` binds port 0 with SO_REUSEADDR, which Linux may give two missions alike): the vehicle sends
+    it heartbeats every GREET_NS from the announcement on, and everything else once it has answered."""
+    vehicle = idle_rig.server.links[0].local_address
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        listener.bind(("127.0.0.1", 0))
+        listener.sendto(LISTEN_HELLO_WALL, vehicle)
+        parser = mavlink2.MAVLink(None)
+        beats = []
+        listener.settimeout(0.05)
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
+            try:
+                data = listener.recv(65535)
+            except TimeoutError:
+                continue
+            beats += [(time.monotonic(), m) for m in parser.parse_buffer(data) or [] if m.get_type() == "HEARTBEAT"]
+        assert len(beats) >= 5, f"{len(beats)} heartbeats in 0.5 s: not greeted every {GREET_NS / 1e6:g} ms"
+        assert beats[0][1].get_srcSystem() == 1
+        # it answers (as MAVSDK does, with its heartbeat): no more greetings, but its streams like any peer's
+        mav = mavlink2.MAVLink(None, 245, 190)
+        listener.sendto(mav.heartbeat_encode(6, 8, 0, 0, 0).pack(mav), vehicle)
+        time.sleep(0.1)
+        kinds: list[str] = []
+        deadline = time.monotonic() + 1.2
+        while time.monotonic() < deadline:
+            try:
+                kinds += [m.get_type() for m in parser.parse_buffer(listener.recv(65535)) or []]
+            except TimeoutError:
+                continue
+        assert "GLOBAL_POSITION_INT" in kinds and kinds.count("HEARTBEAT") <= 3, kinds.count("HEARTBEAT")
+    finally:
+        listener.close()

@@ -44,7 +44,7 @@ from harness.autopilot.mavlink.personality import make_dialect
 from harness.autopilot.mavlink.pilot import PILOT_IDS, handle_pilot
 from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
-from harness.autopilot.mavlink.transport import Address, Link, PortsConfig, UdpLink, pack_frames
+from harness.autopilot.mavlink.transport import GREET_NS, Address, Link, PortsConfig, UdpLink, pack_frames
 from harness.core.clock import WALL, Clock
 from harness.core.endpoints import SETTLE_PREFIX
 
@@ -280,6 +280,11 @@ class MavlinkServer:
     def _service(self, now: int) -> None:
         try:
             self._tick(now)
+            for k, link in enumerate(self.links):  # a mission's MAVSDK port, announced: greet it until it answers
+                for addr in link.greetings(now):
+                    self._send(
+                        Out(self.dialect.heartbeat(self.codec.mav, self.api.state()), Origin(k, addr, 0, 0)), now
+                    )
         except Exception as e:
             self._count("handler_errors")
             self._log_once(e, "service")
@@ -290,6 +295,8 @@ class MavlinkServer:
         )
         if self.params.busy:
             wake = min(wake, now + _PARAM_PACE_NS)
+        if any(link.greeting for link in self.links):
+            wake = min(wake, now + GREET_NS)
         if self._ring_at is None:
             wake = min(wake, now + (_POLL_NS if self._sim_moving else _POLL_PAUSED_NS))
         else:

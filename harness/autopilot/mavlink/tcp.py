@@ -216,6 +216,14 @@ class TcpLink:
             return new
 
     @property
+    def greeting(self) -> bool:
+        """TCP clients speak first: nobody to greet."""
+        return False
+
+    def greetings(self, now_ns: int) -> list[Address]:
+        return []
+
+    @property
     def has_sim_peers(self) -> bool:
         """Whether a client on sim time is connected (the run's missions)."""
         if not self.sim_clients:

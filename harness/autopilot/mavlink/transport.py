@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
-from harness.core.endpoints import LISTEN_HELLO
+from harness.core.endpoints import LISTEN_HELLO, LISTEN_HELLO_WALL
 from harness.core.errors import ScenarioError
 
 log = logging.getLogger(__name__)
@@ -27,6 +27,10 @@ PEER_TIMEOUT_NS = 10_000_000_000
 _FOREVER = 1 << 62
 """Last-heard time of a peer that announced itself as a listener: never forgotten for silence."""
 _RECV_SIZE = 65_535
+GREET_NS = 20_000_000
+"""A port announced with ``LISTEN_HELLO_WALL`` gets a heartbeat this often until it answers (MAVSDK listening
+there discovers the vehicle on the first one that arrives after it has bound the port)."""
+_GREET_FOR_NS = 30_000_000_000
 DATAGRAM_MAX = 1400
 """Frames for one destination share a datagram up to this many bytes: under Ethernet's MTU (no IP
 fragments to a GCS on another machine) and under MAVSDK's 2,048-byte receive buffer. A frame is never split."""
@@ -117,6 +121,9 @@ class Link(Protocol):
     def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]: ...
     @property
     def has_sim_peers(self) -> bool: ...
+    @property
+    def greeting(self) -> bool: ...
+    def greetings(self, now_ns: int) -> list[Address]: ...
     def send(self, data: bytes, addr: Address) -> bool: ...
     def close(self) -> None: ...
 
@@ -130,6 +137,9 @@ class UdpLink:
         self.peer_timeout_ns = peer_timeout_ns
         self._peers: dict[Address, int] = {}
         self._sim_peers: set[Address] = set()
+        self._greeting: dict[Address, int] = {}
+        """Announced MAVSDK ports that have not spoken yet: address → wall time to give up greeting."""
+        self._greeted_ns = 0
         self.send_errors = 0
         self.recv_errors = 0
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -170,6 +180,11 @@ class UdpLink:
                 self._peers[(addr[0], addr[1])] = _FOREVER
                 self._sim_peers.add((addr[0], addr[1]))
                 continue
+            if data == LISTEN_HELLO_WALL:  # the port a mission's MAVSDK is about to listen on (mavsdk_url):
+                # greeted with heartbeats until it answers, and a peer from then on (what went there before
+                # MAVSDK had bound it would be lost, unlike the same seed's next run)
+                self._greeting[(addr[0], addr[1])] = -1
+                continue
             yield data, (addr[0], addr[1])
 
     def heard(self, peer: Address, now_ns: int) -> bool:
@@ -177,7 +192,25 @@ class UdpLink:
         True when it is a new peer."""
         new = peer not in self._peers
         self._peers[peer] = max(self._peers.get(peer, 0), now_ns)
+        self._greeting.pop(peer, None)
         return new
+
+    @property
+    def greeting(self) -> bool:
+        """Whether an announced MAVSDK port waits for its first heartbeat (the server wakes every GREET_NS)."""
+        return bool(self._greeting)
+
+    def greetings(self, now_ns: int) -> list[Address]:
+        """The announced ports to greet now (each ``GREET_NS`` until it speaks, for at most 30 s)."""
+        if not self._greeting or now_ns - self._greeted_ns < GREET_NS:
+            return []
+        self._greeted_ns = now_ns
+        for addr, until in list(self._greeting.items()):
+            if until < 0:
+                self._greeting[addr] = now_ns + _GREET_FOR_NS
+            elif now_ns > until:
+                del self._greeting[addr]
+        return list(self._greeting)
 
     def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
         """The remote and the live peers (forgets peers silent longer than the timeout); without the peers that
