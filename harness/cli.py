@@ -60,15 +60,11 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
 def _end_mission(code: int) -> NoReturn:
     """End a mission process at once: a library may have left a non-daemon thread behind, and whatever the
     script started (mavsdk_server) must not outlive it."""
+    from harness.core.lifeline import exit_now
     from harness.simclock.mission import kill_descendants
 
     kill_descendants()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except Exception:
-            pass
-    os._exit(code)
+    exit_now(code)
 
 
 def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None) -> LaunchPlan:

@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 from collections.abc import Mapping
+from typing import NoReturn
 
 PARENT_ENV = "HARNESS_LIFELINE_PID"
 """The pid of the process whose death must end this one (read and removed by :func:`hold_on`)."""
@@ -61,3 +63,14 @@ def tie_to(parent: int) -> None:
     _pdeathsig()
     if os.getppid() != parent:  # the parent died before the line above: nobody would kill us
         os._exit(ORPHANED_EXIT)
+
+
+def exit_now(code: int) -> NoReturn:
+    """End this process at once with ``code`` (no interpreter teardown: a library may have left a non-daemon
+    thread behind), its standard streams flushed first."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:
+            pass
+    os._exit(code)

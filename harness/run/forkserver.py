@@ -104,12 +104,7 @@ def serve(req_fd: int, rep_fd: int) -> int:
                         try:
                             code = _run_child(req, server, (req_fd, rep_fd, *children))
                         finally:
-                            for stream in (sys.stdout, sys.stderr):
-                                try:
-                                    stream.flush()
-                                except Exception:
-                                    pass
-                            os._exit(code)
+                            lifeline.exit_now(code)
                     try:
                         os.setpgid(pid, pid)  # as the child does: whichever runs first, the group exists
                     except OSError:

@@ -29,16 +29,8 @@ def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_
     try:
         wait_for_sim_time(proc, out, 15.0, 120)
         assert pids_with_run_dir(out), "the mission process runs"
-        proc.send_signal(signal.SIGKILL)
-        proc.communicate(timeout=10)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    gone = time.monotonic() + 5.0
-    while pids_with_run_dir(out) and time.monotonic() < gone:
-        time.sleep(0.1)
-    assert not pids_with_run_dir(out), "every child of the killed run is gone"
+        _kill_9_and_expect_no_child(proc, out)
 
     # the run directory says the run did not finish, with the sim time it reached
     summary = read_summary(out)
@@ -96,15 +88,18 @@ def test_kill_9_right_after_the_children_started_leaves_no_process(tmp_path: Pat
             assert proc.poll() is None, proc.communicate()
             time.sleep(0.005)
         assert len(started) >= 5, started
-        proc.send_signal(signal.SIGKILL)
-        proc.communicate(timeout=10)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+        _kill_9_and_expect_no_child(proc, out)
+    raw = json.loads((out / "summary.json").read_text())
+    assert raw["status"] == "running" and raw["sim_time_s"] == 0.0, "killed before the first tick"
+
+
+def _kill_9_and_expect_no_child(proc: subprocess.Popen[str], out: Path) -> None:
+    """``kill -9`` the run; within 5 s not one process of its run directory may be left."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=10)
     gone = time.monotonic() + 5.0
     while pids_with_run_dir(out) and time.monotonic() < gone:
         time.sleep(0.1)
     assert not pids_with_run_dir(out), "every child of the killed run is gone"
-    raw = json.loads((out / "summary.json").read_text())
-    assert raw["status"] == "running" and raw["sim_time_s"] == 0.0, "killed before the first tick"
