@@ -71,7 +71,7 @@ class ChannelClient:
             sock = connect(addr, timeout_s)
         except OSError as exc:
             raise SimulationError(f"cannot reach the channel at {addr}: {exc}") from None
-        sock.settimeout(max(timeout_s, answer_timeout_s))
+        sock.settimeout(answer_timeout_s)
         dec = p.FrameDecoder()
         try:
             challenge, _ = _read_one(sock, dec, addr)
