@@ -19,6 +19,7 @@ import importlib
 import importlib.abc
 import importlib.machinery
 import logging
+import os
 import re
 import socket
 import sys
@@ -164,7 +165,32 @@ def _hold_phase_during_requests() -> None:
     stream_cls.__call__ = subscribe
 
 
+def on_sim_clock() -> bool:
+    """Put MAVSDK's native core (``libcmavsdk.so``) on this mission's sim clock (``native.attach``).
+
+    True when its threads now follow sim time; False without a runtime (outside a run), without a C compiler,
+    or with ``HARNESS_MAVSDK_CLOCK=wall`` (the old behaviour, to compare against)."""
+    from harness.simclock import native
+    from harness.simclock.installed import current
+
+    rt = current()
+    if rt is None or os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") == "wall":
+        return False
+    if rt.native is not None:
+        return True
+    importlib.import_module("mavsdk.cmavsdk_loader")  # loads libcmavsdk.so
+    trace_dir = os.environ.get("HARNESS_SIMTIME_TRACE_DIR")
+    if trace_dir:  # every release of MAVSDK's threads, per vehicle: for comparing two runs (docs/simclock.md)
+        os.environ["HARNESS_SIMTIME_TRACE"] = os.path.join(trace_dir, f"simtime-{rt.vehicle}.trace")
+    clock = native.attach("libcmavsdk", rt.epoch_ns, rt.now_ns())
+    if clock is None:
+        return False
+    rt.native = clock
+    return True
+
+
 def _patch_native(ep: VehicleEndpoints | None) -> None:
+    on_sim_clock()
     for modname in ("mavsdk.mavsdk", "mavsdk.asyncio.mavsdk"):
         try:
             mod = importlib.import_module(modname)
@@ -230,6 +256,9 @@ def _for_vehicle(url: str, ep: VehicleEndpoints | None) -> str:
     """``url`` as MAVSDK is to use it in a run: listening on a port announced to the mission's vehicle."""
     if ep is None:
         return url
+    from harness.simclock.installed import current
     from harness.simclock.simsocket import announce_listen_port
 
-    return mavsdk_url(url, ep, lambda: announce_listen_port(ep))
+    rt = current()
+    sim = rt is not None and rt.native is not None
+    return mavsdk_url(url, ep, lambda: announce_listen_port(ep, sim_clock=sim))
