@@ -100,6 +100,11 @@ class MavlinkCounters:
     commands_by_id: dict[int, dict[str, int]] = field(default_factory=dict)
 
 
+ROUNDS_PER_LOOP = 1
+"""Rounds of a mission's messages (each ended by its runtime's settle) that one autopilot loop answers at once;
+later ones wait for the next loop, as a flight stack's MAVLink receiver handles what came in once per loop."""
+
+
 class MavlinkServer:
     """PX4-dialect MAVLink endpoint of one vehicle (system id ``vehicle + 1``, component 1).
 
@@ -177,6 +182,10 @@ class MavlinkServer:
         self._lock = threading.Lock()
         """Serialises the hub thread (datagrams, wall-clock deadlines) and the stepping thread (the bell)."""
         self._ring_at: Callable[[int], None] | None = None
+        self._round_t_ns = -1
+        self._rounds = 0
+        self._deferred: list[tuple[int, bytes, tuple[str, int]]] = []
+        """What a mission sent after this loop's round of answers: handled at the next step (``ROUNDS_PER_LOOP``)."""
         self.next_wake_ns = 0
         """Wall time (monotonic ns) at which the hub must call :meth:`service` at the latest."""
         dialect.bind(self, mav, self.sysid)
@@ -267,6 +276,8 @@ class MavlinkServer:
         with self._lock:
             self._stepping = True
             try:
+                if self._deferred:
+                    self._handle_deferred(self._wall_ns())
                 self._service(self._wall_ns())
             finally:
                 self._stepping = False
@@ -301,7 +312,13 @@ class MavlinkServer:
             wake = min(wake, now + (_POLL_NS if self._sim_moving else _POLL_PAUSED_NS))
         else:
             wake = min(wake, now + _SAFETY_NS)
-            self._ring_at(min(self.streams.next_due_sim_ns() or _NEVER, self.heartbeat.next_due_sim_ns() or _NEVER))
+            self._ring_at(
+                min(
+                    self.streams.next_due_sim_ns() or _NEVER,
+                    self.heartbeat.next_due_sim_ns() or _NEVER,
+                    self._t_ns + 1 if self._deferred else _NEVER,
+                )
+            )
         self.next_wake_ns = wake
 
     def _log_once(self, e: Exception, what: str) -> None:
@@ -322,13 +339,20 @@ class MavlinkServer:
     # ------------------------------------------------------------------ receive
     def _on_datagram(self, link: int, data: bytes, addr: tuple[str, int], now: int) -> None:
         if data.startswith(SETTLE_PREFIX):
-            # a mission's runtime asks whether all it sent before is handled: yes (one socket, in order);
-            # what that caused (a forced heartbeat, a STATUSTEXT, a due message) goes out before the answer
+            # a mission's runtime asks whether all it sent before is handled: yes (one socket, in order; what
+            # came after this loop's round waits for the next step, which is as sure); what that caused (a
+            # forced heartbeat, a STATUSTEXT, a due message) goes out before the answer
             self._drain_tcp(now)  # its MAVLink may have come over TCP (SERIAL0) instead
             self._service(now)
             while self.params.busy:  # a parameter list it asked for goes out now, not paced on the wall clock
                 self._send_all(self.params.tick(), now)
+            self._round_done()
             self.links[link].send(data, addr)
+            return
+        if self._deferred or self._over_budget():
+            self._deferred.append((link, data, addr))
+            if self._ring_at is not None:
+                self._ring_at(self._t_ns + 1)
             return
         self._count("datagrams_rx")
         for d in self.codec.decode(data):
@@ -360,6 +384,28 @@ class MavlinkServer:
                 except Exception as e:
                     self._count("handler_errors")
                     self._log_once(e, f"handling {m.get_type()}")
+
+    def _loop_t_ns(self) -> int:
+        return max(self._t_ns, self.api.state().t_ns)
+
+    def _round_done(self) -> None:
+        """A mission's settle: one round of its messages and this vehicle's answers is over in this loop."""
+        t = self._loop_t_ns()
+        if t != self._round_t_ns:
+            self._round_t_ns, self._rounds = t, 0
+        self._rounds += 1
+
+    def _over_budget(self) -> bool:
+        """Whether this loop has answered its round already: a mission that answers every answer at once (a
+        COMMAND_ACK listener that sends the next command) then goes on at the firmware's loop rate in sim time,
+        instead of holding phase 0 forever."""
+        return self._round_t_ns == self._loop_t_ns() and self._rounds >= ROUNDS_PER_LOOP
+
+    def _handle_deferred(self, now: int) -> None:
+        """The next step (the bell): what waited for it is handled first, in the order it came."""
+        deferred, self._deferred = self._deferred, []
+        for link, data, addr in deferred:
+            self._on_datagram(link, data, addr, now)
 
     def _trusted(self, link: int, addr: tuple[str, int]) -> bool:
         trust = self._trust_unsigned
@@ -433,7 +479,10 @@ class MavlinkServer:
         elif mid == _M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL:
             self._send_all(ftp.nak(self.codec.mav, m, origin), now)
         elif mid == _M.MAVLINK_MSG_ID_TIMESYNC and m.tc1 == 0:
-            self._send(Out(self.codec.mav.timesync_encode(now, m.ts1), origin), now)
+            # tc1 on the time base of every time_boot_ms and time_usec this vehicle sends: sim time since boot
+            # (the last step's), as PX4 answers with its own boot time — never the host's uptime
+            t_ns = max(self._t_ns, self.api.state().t_ns)
+            self._send(Out(self.codec.mav.timesync_encode(t_ns, m.ts1), origin), now)
 
     def _command(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
         cmd = CommandIn.from_message(m)
