@@ -11,6 +11,7 @@ behind (``mavsdk-grpc`` does). When the run ends first, the script is stopped wi
 
 from __future__ import annotations
 
+import _thread
 import logging
 import os
 import runpy
@@ -60,6 +61,11 @@ BYE_WAIT_S = 30.0
 before it says BYE itself (the run is over or its channel gone)."""
 
 
+def _release(lock: _thread.LockType) -> None:
+    if lock.locked():
+        lock.release()
+
+
 class _ClockThread(threading.Thread):
     def __init__(self, client: ChannelClient, rt: SimRuntime, hooks: MissionHooks) -> None:
         super().__init__(name=f"{INFRA_THREAD_PREFIX}clock", daemon=True)
@@ -71,7 +77,10 @@ class _ClockThread(threading.Thread):
         self.script_done = False
         self.exit_code: int | None = None
         """Set by the main thread when the script has ended: the phase it ended in answers with BYE."""
-        self.said_bye = threading.Event()
+        self.said_bye = _thread.allocate_lock()
+        """Released once the clock thread has said BYE (a raw lock: ``threading`` waits are sim-time waits, and
+        no phase comes after the last one to release them)."""
+        self.said_bye.acquire()
 
     def run(self) -> None:
         try:
@@ -90,7 +99,7 @@ class _ClockThread(threading.Thread):
                         self.client.send_many(out)
                         if code is not None:  # the phase the script ended in: its answer is BYE, at any pace
                             self.client.close(f"script exited with {code}", code)
-                            self.said_bye.set()
+                            _release(self.said_bye)
                             return
                     elif isinstance(msg, p.Deliver):
                         self.rt.deliver([_delivery(msg)])
@@ -110,7 +119,7 @@ class _ClockThread(threading.Thread):
 
     def _end(self, reason: str) -> None:
         if self.script_done:
-            self.said_bye.set()  # the script ended first; the main thread says BYE (if it can) and exits
+            _release(self.said_bye)  # the script ended first; the main thread says BYE (if it can) and exits
             return
         self.end_reason = reason
         self.rt.close()
@@ -224,7 +233,7 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     clock.script_done = True
     clock.exit_code = code
     rt.thread_done()  # the phase ends once the library threads are idle too, and answers BYE (the clock thread)
-    if not clock.said_bye.wait(BYE_WAIT_S):
+    if not clock.said_bye.acquire(True, BYE_WAIT_S):
         try:
             client.close(f"script exited with {code}", code)
         except Exception:

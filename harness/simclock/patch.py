@@ -267,7 +267,10 @@ class SimSelector(selectors.BaseSelector):
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
         rt = self._rt
-        if (timeout is not None and timeout <= 0) or not rt._tracked():
+        if not rt._tracked():
+            return self._inner.select(timeout)
+        if timeout is not None and timeout <= 0:
+            rt.clock_read()  # a loop that is never idle (``await asyncio.sleep(0)`` forever) sees time pass
             return self._inner.select(timeout)
         events = self._inner.select(0)
         if events:

@@ -121,6 +121,7 @@ class SimSocket(_original_socket):
         rt = INSTALLED.sockets
         if self._mavlink and rt is not None:
             rt.mavlink_sent += 1
+            rt.clock_read()  # a thread that only ever sends (no wait, no answer read) sees time pass
 
     def close(self) -> None:
         rt = INSTALLED.sockets
