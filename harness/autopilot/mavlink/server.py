@@ -299,10 +299,10 @@ class MavlinkServer:
         except Exception as e:
             self._count("handler_errors")
             self._log_once(e, "service")
+        sim_peers = self._sim_peers()
+        retry = self.missions.next_retry_ns() or _NEVER
         wake = min(
-            self.heartbeat.next_due_ns(),
-            self.streams.next_due_wall_ns() or _NEVER,
-            self.missions.next_retry_ns() or _NEVER,
+            self.heartbeat.next_due_ns(), self.streams.next_due_wall_ns() or _NEVER, _NEVER if sim_peers else retry
         )
         if self.params.busy:
             wake = min(wake, now + _PARAM_PACE_NS)
@@ -317,6 +317,7 @@ class MavlinkServer:
                     self.streams.next_due_sim_ns() or _NEVER,
                     self.heartbeat.next_due_sim_ns() or _NEVER,
                     self._t_ns + 1 if self._deferred else _NEVER,
+                    retry if sim_peers else _NEVER,
                 )
             )
         self.next_wake_ns = wake
@@ -388,6 +389,16 @@ class MavlinkServer:
     def _loop_t_ns(self) -> int:
         return max(self._t_ns, self.api.state().t_ns)
 
+    def _sim_peers(self) -> bool:
+        """Whether a peer that lives on sim time (a mission) talks to this vehicle."""
+        return any(link.has_sim_peers for link in self.links)
+
+    def _peer_now(self, now: int) -> int:
+        """The clock of timeouts that concern peers (mission-upload retries, data-link loss): sim time while a
+        mission talks to this vehicle (it answers only in phase 0, however long the machine takes between two
+        phases), the wall clock for ground stations alone."""
+        return self._loop_t_ns() if self._sim_peers() else now
+
     def _round_done(self) -> None:
         """A mission's settle: one round of its messages and this vehicle's answers is over in this loop."""
         t = self._loop_t_ns()
@@ -439,7 +450,7 @@ class MavlinkServer:
         mid = m.get_msgId()
         if mid == _M.MAVLINK_MSG_ID_HEARTBEAT:
             if m.type == _M.MAV_TYPE_GCS:
-                self.datalink.heard_gcs(now)
+                self.datalink.heard_gcs(self._peer_now(now))
             return
         if not self._for_us(m):
             self._count("not_for_us")
@@ -457,7 +468,7 @@ class MavlinkServer:
             if refusal is not None:
                 self._say(Severity.WARNING, refusal.reason, now)
         elif mid in _MISSION_IDS:
-            self._send_all(self.missions.handle(m, origin, now), now)
+            self._send_all(self.missions.handle(m, origin, self._peer_now(now)), now)
             self._mission_refusals(now)
         elif mid in PILOT_IDS:
             r = handle_pilot(self.api, m, self.sysid)
@@ -533,7 +544,7 @@ class MavlinkServer:
         self._t_ns = max(self._t_ns, state.t_ns)
         mav = self.codec.mav
         outs: list[Out] = []
-        sim_peers = any(link.has_sim_peers for link in self.links)
+        sim_peers = self._sim_peers()
         if self.heartbeat.due(now, state, sim_peers):
             outs.append(Out(self.dialect.heartbeat(mav, state), wall_clock=self.heartbeat.by_wall))
         t_ms = self._boot_ms()
@@ -554,13 +565,13 @@ class MavlinkServer:
             outs.append(Out(mav.mission_item_reached_encode(reached.seq & 0xFFFF)))
         outs += self.dialect.tick(state, now)
         self._send_all(outs, now)
-        lost = self.datalink.check(state, now)
+        lost = self.datalink.check(state, self._peer_now(now))
         if lost:
             self._say(Severity.CRITICAL, lost, now)
         for text in self.api.pop_status_texts():
             self._say(text.severity, text.text, now)
         self._send_all(self.params.tick(), now)
-        self._send_all(self.missions.tick(now), now)
+        self._send_all(self.missions.tick(self._peer_now(now)), now)
         self._mission_refusals(now)
 
     def _set_home_at_first_fix(self, state: VehicleState) -> bool:
