@@ -2,6 +2,7 @@
 COMMAND_ACK listener sends the next MAV_CMD_DO_SET_ROI the moment an ACK arrives, for 10 s of sim time, and
 prints how many round trips it made and the shortest and longest interval between two ACKs."""
 
+import itertools
 import sys
 import time
 
@@ -13,9 +14,7 @@ stamps: list[float] = []
 
 
 def send() -> None:
-    msg = vehicle.message_factory.command_long_encode(
-        1, 1, mavutil.mavlink.MAV_CMD_DO_SET_ROI, 0, 0, 0, 0, 0, 0, 0, 0
-    )
+    msg = vehicle.message_factory.command_long_encode(1, 1, mavutil.mavlink.MAV_CMD_DO_SET_ROI, 0, 0, 0, 0, 0, 0, 0, 0)
     vehicle.send_mavlink(msg)
 
 
@@ -30,5 +29,5 @@ send()
 for _ in range(10):
     time.sleep(1)
 vehicle.close()
-gaps = [b - a for a, b in zip(stamps, stamps[1:])]
+gaps = [b - a for a, b in itertools.pairwise(stamps)]
 print(f"acks {len(stamps)} in {time.monotonic() - start:.3f} s, gaps {min(gaps):.3f} to {max(gaps):.3f} s")

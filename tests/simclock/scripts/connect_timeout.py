@@ -12,7 +12,7 @@ async def main() -> None:
     start = time.monotonic()
     try:
         await asyncio.wait_for(drone.connect("invalid://bad:connection"), timeout=8)
-    except asyncio.TimeoutError:
+    except TimeoutError:
         print(f"Timed out after {time.monotonic() - start:.3f} s")
     except Exception as e:
         print(f"Got exception: {e}")
