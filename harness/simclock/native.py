@@ -106,6 +106,10 @@ class NativeClock:
     def reopen(self) -> None:
         self.lib.hs_reopen()
 
+    def pause(self) -> None:
+        """Shut the gate without ending the phase (a settle is in flight); :meth:`reopen` opens it again."""
+        self.lib.hs_pause()
+
     def busy(self) -> int:
         return int(self.lib.hs_busy())
 

@@ -130,6 +130,7 @@ class SimRuntime:
         clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
         self._wake_requested = False
         self._holds = 0
+        self._settling = False
         self._reads: dict[int, int] = {}
         self._held_until_wall_ns = 0
         self.mavlink_fds: set[int] = set()
@@ -172,11 +173,7 @@ class SimRuntime:
             self._now_ns = t_ns
             self._started = True
             self._reads.clear()
-            self._gate_open = True
-            gated, self._gate_waiters = self._gate_waiters, []
-            for w in gated:
-                self._release_locked(w)
-            self.stats.waits_released += len(gated)
+            self._open_gate_locked()
         native = self.native
         if native is not None:
             native.begin(t_ns)
@@ -241,14 +238,35 @@ class SimRuntime:
 
         So a command and its answer take no sim time, and a command takes effect before the next tick,
         whatever the machine's pace (a MAVSDK request is held the same way, in ``mavsdk_compat``)."""
+        native = self.native
         with self._mu:
             sent = self._sent_locked()
+            # Nothing runs while the vehicle answers: what it sends before its echo is read after it, so one round
+            # (the script's messages up to this settle, and their answers) never runs into the next, at any pace.
+            self._gate_open = False
+            self._settling = True
+            if native is not None:
+                native.pause()
         settle = self.settle_mavlink
-        if settle is not None and not settle():
-            log.warning("the vehicle did not confirm the script's MAVLink in time; going on without its answer")
-        with self._mu:
-            self._mavlink_synced = sent
+        try:
+            if settle is not None and not settle():
+                log.warning("the vehicle did not confirm the script's MAVLink in time; going on without its answer")
+        finally:
+            with self._mu:
+                self._mavlink_synced = sent
+                self._settling = False
+                self._open_gate_locked()
+                if native is not None:
+                    native.reopen()
         self._release_ready_io()
+
+    def _open_gate_locked(self) -> None:
+        """Script threads may run again: those that were woken while the gate was shut run now."""
+        self._gate_open = True
+        gated, self._gate_waiters = self._gate_waiters, []
+        for w in gated:
+            self._release_locked(w)
+        self.stats.waits_released += len(gated)
 
     def _release_ready_io(self) -> None:
         """Let every thread waiting on a descriptor that is ready now run (clock thread, phase 0).
@@ -509,7 +527,7 @@ class SimRuntime:
         if not self._gate_open:
             if w not in self._gate_waiters:
                 self._gate_waiters.append(w)
-                if wake:
+                if wake and not self._settling:  # within a phase: it runs when the settle is over
                     self._want_phase_locked()
             return
         w.released = True

@@ -821,7 +821,14 @@ int hs_try_close(void) {
     return r;
 }
 
-/* Re-open a gate closed by hs_try_close (the Python side found work after all). */
+/* Shut the gate for a moment within the phase (the runtime settles the script's MAVLink). */
+void hs_pause(void) {
+    pthread_mutex_lock(&mu);
+    gate_open = 0;
+    pthread_mutex_unlock(&mu);
+}
+
+/* Re-open a gate closed by hs_try_close or hs_pause (the Python side found work after all, or settled). */
 void hs_reopen(void) { hs_begin(INT64_MIN); }
 
 /* The earliest sim deadline of a waiting thread or an armed timer (NO_DEADLINE: none). */

@@ -100,9 +100,12 @@ class MavlinkCounters:
     commands_by_id: dict[int, dict[str, int]] = field(default_factory=dict)
 
 
-ROUNDS_PER_LOOP = 1
-"""Rounds of a mission's messages (each ended by its runtime's settle) that one autopilot loop answers at once;
-later ones wait for the next loop, as a flight stack's MAVLink receiver handles what came in once per loop."""
+DATAGRAMS_PER_LOOP = 8
+"""Datagrams one autopilot loop (a tick, 4 ms at 250 Hz) handles at most; later ones wait for the next loop, as a
+flight stack's MAVLink receiver handles what came in once per loop. A client that answers every answer at once
+(a COMMAND_ACK listener that sends the next command) then goes on at that rate in sim time instead of holding
+phase 0 forever; a mission upload or a burst of setpoints is far below it. Counted by the loop's sim time, so
+the same messages are handled in the same loop at any pace."""
 
 
 class MavlinkServer:
@@ -182,10 +185,10 @@ class MavlinkServer:
         self._lock = threading.Lock()
         """Serialises the hub thread (datagrams, wall-clock deadlines) and the stepping thread (the bell)."""
         self._ring_at: Callable[[int], None] | None = None
-        self._round_t_ns = -1
-        self._rounds = 0
+        self._loop_t = -1
+        self._loop_datagrams = 0
         self._deferred: list[tuple[int, bytes, tuple[str, int]]] = []
-        """What a mission sent after this loop's round of answers: handled at the next step (``ROUNDS_PER_LOOP``)."""
+        """What came after this loop's share: handled at the next step (``DATAGRAMS_PER_LOOP``)."""
         self.next_wake_ns = 0
         """Wall time (monotonic ns) at which the hub must call :meth:`service` at the latest."""
         dialect.bind(self, mav, self.sysid)
@@ -341,20 +344,22 @@ class MavlinkServer:
     def _on_datagram(self, link: int, data: bytes, addr: tuple[str, int], now: int) -> None:
         if data.startswith(SETTLE_PREFIX):
             # a mission's runtime asks whether all it sent before is handled: yes (one socket, in order; what
-            # came after this loop's round waits for the next step, which is as sure); what that caused (a
+            # came after this loop's share waits for the next step, which is as sure); what that caused (a
             # forced heartbeat, a STATUSTEXT, a due message) goes out before the answer
             self._drain_tcp(now)  # its MAVLink may have come over TCP (SERIAL0) instead
             self._service(now)
             while self.params.busy:  # a parameter list it asked for goes out now, not paced on the wall clock
                 self._send_all(self.params.tick(), now)
-            self._round_done()
             self.links[link].send(data, addr)
             return
-        if self._deferred or self._over_budget():
+        if self._deferred or not self._in_budget():
             self._deferred.append((link, data, addr))
             if self._ring_at is not None:
                 self._ring_at(self._t_ns + 1)
             return
+        self._handle(link, data, addr, now)
+
+    def _handle(self, link: int, data: bytes, addr: tuple[str, int], now: int) -> None:
         self._count("datagrams_rx")
         for d in self.codec.decode(data):
             if d.status is FrameStatus.UNSIGNED and self._trusted(link, addr):
@@ -399,24 +404,24 @@ class MavlinkServer:
         phases), the wall clock for ground stations alone."""
         return self._loop_t_ns() if self._sim_peers() else now
 
-    def _round_done(self) -> None:
-        """A mission's settle: one round of its messages and this vehicle's answers is over in this loop."""
+    def _in_budget(self) -> bool:
+        """Count one datagram against this loop's share (``DATAGRAMS_PER_LOOP``); False once it is used up."""
         t = self._loop_t_ns()
-        if t != self._round_t_ns:
-            self._round_t_ns, self._rounds = t, 0
-        self._rounds += 1
-
-    def _over_budget(self) -> bool:
-        """Whether this loop has answered its round already: a mission that answers every answer at once (a
-        COMMAND_ACK listener that sends the next command) then goes on at the firmware's loop rate in sim time,
-        instead of holding phase 0 forever."""
-        return self._round_t_ns == self._loop_t_ns() and self._rounds >= ROUNDS_PER_LOOP
+        if t != self._loop_t:
+            self._loop_t, self._loop_datagrams = t, 0
+        if self._loop_datagrams >= DATAGRAMS_PER_LOOP:
+            return False
+        self._loop_datagrams += 1
+        return True
 
     def _handle_deferred(self, now: int) -> None:
         """The next step (the bell): what waited for it is handled first, in the order it came."""
         deferred, self._deferred = self._deferred, []
-        for link, data, addr in deferred:
-            self._on_datagram(link, data, addr, now)
+        for k, (link, data, addr) in enumerate(deferred):
+            if not self._in_budget():
+                self._deferred = deferred[k:]
+                return
+            self._handle(link, data, addr, now)
 
     def _trusted(self, link: int, addr: tuple[str, int]) -> bool:
         trust = self._trust_unsigned
