@@ -9,8 +9,12 @@ import enum
 import importlib
 import inspect
 import math
+import os
 import re
+import subprocess
+import sys
 from collections.abc import AsyncIterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -74,6 +78,8 @@ def test_every_public_grpc_method_maps_to_a_native_one_or_is_declared_unavailabl
         assert native_cls is not None, f"{plugin}: no native plugin and not declared unavailable"
         name = gn.native_method_name(native_cls, rpc, desc.server_streaming)
         assert name is not None, f"{plugin}.{public}() ({rpc}) has no native counterpart"
+        kind = inspect.isasyncgenfunction if desc.server_streaming else inspect.iscoroutinefunction
+        assert kind(getattr(native_cls, name)), f"{plugin}.{name}: not a {kind.__name__}"
         params = list(inspect.signature(getattr(native_cls, name)).parameters)[1:]
         assert params == [f.name for f in desc.input_type.fields], f"{plugin}.{public}: {params}"
 
@@ -343,3 +349,29 @@ def test_every_rpc_path_resolves_in_the_descriptor_pool() -> None:
     for plugin in PLUGINS:
         for s in services(plugin):
             assert pool.FindServiceByName(s.full_name) is s
+
+
+@pytest.mark.parametrize("backend", ["native", "server"])
+def test_install_gives_the_script_the_grpc_api_on_the_chosen_backend(tmp_path: Path, backend: str) -> None:
+    """In a fresh interpreter, as a mission: ``import mavsdk`` is the gRPC API, whose System runs on the native
+    core (whose own modules were kept aside) or, with ``HARNESS_MAVSDK_GRPC=server``, on mavsdk_server."""
+    script = tmp_path / "old.py"
+    script.write_text("from mavsdk import System\n")
+    probe = f"""
+import sys
+from pathlib import Path
+from harness.simclock import mavsdk_compat, mavsdk_grpc_native as gn
+assert mavsdk_compat.install(Path({str(script)!r}), None) == "grpc"
+import mavsdk, mavsdk.telemetry
+from mavsdk import System
+assert mavsdk.__name__ == "mavsdk_grpc" and mavsdk.telemetry.__name__ == "mavsdk_grpc.telemetry"
+native = getattr(System, "_harness_native", False)
+server = getattr(System, "_harness_patched", False)
+print("native" if native and not server else "server" if server and not native else "both?")
+if native:
+    assert hasattr(gn._native.mavsdk, "Mavsdk") and "telemetry" in gn._native.plugins
+"""
+    env = {**os.environ, "HARNESS_MAVSDK_GRPC": backend}
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == backend
