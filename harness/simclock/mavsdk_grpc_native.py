@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import asyncio
 import enum
+import functools
 import importlib
 import inspect
 import logging
@@ -414,6 +415,43 @@ _SPECIAL: dict[str, Callable[[Backend], Any]] = {"core.SubscribeConnectionState"
 """RPCs answered here, not by a native plugin; they yield whole responses (as namespaces)."""
 
 
+async def _play_tune(backend: Backend, tune_description: Any) -> Any:
+    """tune.play_tune(): the native ``mavsdk`` 4.1.0 binding declares the C struct of a tune as one ``int`` for
+    its song elements (``TuneDescription.to_c_struct`` fails on the list); the C function takes
+    ``{const int *song_elements; size_t song_elements_size; int32_t tempo}`` (as ``libcmavsdk.so`` reads it).
+    Called here with that struct, through a function pointer of our own (the binding's stays as it is)."""
+    import ctypes
+
+    tune = backend.native.types["tune"]
+    plugin = backend.plugin("tune")._plugin
+
+    class TuneDescriptionC(ctypes.Structure):
+        _fields_ = [
+            ("song_elements", ctypes.POINTER(ctypes.c_int)),
+            ("song_elements_size", ctypes.c_size_t),
+            ("tempo", ctypes.c_int32),
+        ]
+
+    elements = [int(e) for e in tune_description.song_elements]
+    array = (ctypes.c_int * max(1, len(elements)))(*elements)
+    c_tune = TuneDescriptionC(array, len(elements), int(tune_description.tempo))
+    fn = plugin._lib["mavsdk_tune_play_tune"]  # a new function pointer: the binding's keeps its argtypes
+    fn.argtypes = [ctypes.c_void_p, TuneDescriptionC]
+    fn.restype = ctypes.c_int
+
+    def call() -> Any:
+        return tune.TuneResult(fn(plugin._require_handle(), c_tune))
+
+    result = await asyncio.get_running_loop().run_in_executor(None, call)
+    if result != tune.TuneResult.SUCCESS:
+        raise tune.TuneError(result, "play_tune()", tune_description)
+    return None
+
+
+_FIXED: dict[str, Callable[..., Any]] = {"tune.PlayTune": _play_tune}
+"""Unary RPCs whose native binding is broken, called here instead (``fn(backend, *native_args)``)."""
+
+
 def _method(path: str) -> tuple[str, str, Any]:
     """``/mavsdk.rpc.action.ActionService/Arm`` → (``action``, ``Arm``, its MethodDescriptor)."""
     from google.protobuf import descriptor_pool
@@ -456,7 +494,8 @@ class _Unary:
     async def _call(self, request: Any) -> Any:
         backend = self._channel.backend
         plugin, rpc, _ = _method(self._path)
-        fn = resolve(backend, plugin, rpc, streaming=False)
+        fixed = _FIXED.get(f"{plugin}.{rpc}")
+        fn = functools.partial(fixed, backend) if fixed else resolve(backend, plugin, rpc, streaming=False)
         resp = self._response_cls()
         try:
             value = await fn(*_request_args(backend, request))

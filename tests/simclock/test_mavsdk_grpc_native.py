@@ -94,6 +94,15 @@ def test_what_is_not_available_is_named_and_explained() -> None:
     assert gn.plugin_class(NATIVE, "tracking_server") is None
     assert gn.plugin_class(NATIVE, "component_metadata_server") is None
     assert "core.SubscribeConnectionState" in gn._SPECIAL
+    for key in gn._FIXED:  # native bindings worked around (tune.play_tune: its C struct is declared wrong)
+        plugin, rpc = key.split(".")
+        assert rpc in {m.name for s in services(plugin) for m in s.methods}
+
+
+def test_the_tune_binding_is_still_broken_else_drop_the_work_around() -> None:
+    tune = NATIVE.types["tune"]
+    with pytest.raises(TypeError):
+        tune.TuneDescription([tune.SongElement.NOTE_A], 120).to_c_struct()
 
 
 def _all_enums_and_messages() -> tuple[list[Any], list[Any]]:
