@@ -146,6 +146,14 @@ def on_sim_clock() -> bool:
     return True
 
 
+def _shim_unavailable() -> bool:
+    """In a run, the sim-clock shim for MAVSDK's core cannot be built here (no C compiler)."""
+    from harness.simclock import native
+    from harness.simclock.installed import current
+
+    return current() is not None and os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") != "wall" and native.build() is None
+
+
 def _patch_native(ep: VehicleEndpoints | None) -> None:
     on_sim_clock()
     for modname in ("mavsdk.mavsdk", "mavsdk.asyncio.mavsdk"):
@@ -197,15 +205,18 @@ def install(script: Path, ep: VehicleEndpoints | None, api: MavsdkApi | None = N
                 f"{script} uses the old gRPC MAVSDK API (from mavsdk import System … await drone.connect()); "
                 "install it with: pip install mavsdk-grpc"
             ) from None
-        if grpc_backend() == "native":
+        backend = grpc_backend()
+        if backend == "native":
             from harness.simclock import mavsdk_grpc_native
 
             mavsdk_grpc_native.load_native()  # before ``mavsdk`` becomes mavsdk_grpc for the script
+            if not on_sim_clock() and _shim_unavailable():
+                backend = "server"  # no C compiler: today's path, mavsdk_server with its holds (said once)
         if api == MavsdkApi.GRPC:
             for name in [m for m in sys.modules if m == "mavsdk" or m.startswith("mavsdk.")]:
                 del sys.modules[name]
             sys.meta_path.insert(0, _AliasFinder())
-        if grpc_backend() == "server":
+        if backend == "server":
             _patch_grpc_server(ep)
         else:
             from harness.simclock import mavsdk_grpc_native
