@@ -122,7 +122,40 @@ def _patch_grpc_server(ep: VehicleEndpoints | None) -> None:
     System._harness_patched = True
 
 
+def on_sim_clock() -> bool:
+    """Put MAVSDK's native core (``libcmavsdk.so``) on this mission's sim clock (``native.attach``).
+
+    True when its threads now follow sim time; False without a runtime (outside a run), without a C compiler,
+    or with ``HARNESS_MAVSDK_CLOCK=wall`` (the old behaviour, to compare against)."""
+    from harness.simclock import native
+    from harness.simclock.installed import current
+
+    rt = current()
+    if rt is None or os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") == "wall":
+        return False
+    if rt.native is not None:
+        return True
+    importlib.import_module("mavsdk.cmavsdk_loader")  # loads libcmavsdk.so
+    trace_dir = os.environ.get("HARNESS_SIMTIME_TRACE_DIR")
+    if trace_dir:  # every release of MAVSDK's threads, per vehicle: for comparing two runs (docs/simclock.md)
+        os.environ["HARNESS_SIMTIME_TRACE"] = os.path.join(trace_dir, f"simtime-{rt.vehicle}.trace")
+    clock = native.attach("libcmavsdk", rt.epoch_ns, rt.now_ns())
+    if clock is None:
+        return False
+    rt.native = clock
+    return True
+
+
+def _shim_unavailable() -> bool:
+    """In a run, the sim-clock shim for MAVSDK's core cannot be built here (no C compiler)."""
+    from harness.simclock import native
+    from harness.simclock.installed import current
+
+    return current() is not None and os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") != "wall" and native.build() is None
+
+
 def _patch_native(ep: VehicleEndpoints | None) -> None:
+    on_sim_clock()
     for modname in ("mavsdk.mavsdk", "mavsdk.asyncio.mavsdk"):
         try:
             mod = importlib.import_module(modname)
@@ -172,15 +205,18 @@ def install(script: Path, ep: VehicleEndpoints | None, api: MavsdkApi | None = N
                 f"{script} uses the old gRPC MAVSDK API (from mavsdk import System … await drone.connect()); "
                 "install it with: pip install mavsdk-grpc"
             ) from None
-        if grpc_backend() == "native":
+        backend = grpc_backend()
+        if backend == "native":
             from harness.simclock import mavsdk_grpc_native
 
             mavsdk_grpc_native.load_native()  # before ``mavsdk`` becomes mavsdk_grpc for the script
+            if not on_sim_clock() and _shim_unavailable():
+                backend = "server"  # no C compiler: today's path, mavsdk_server with its holds (said once)
         if api == MavsdkApi.GRPC:
             for name in [m for m in sys.modules if m == "mavsdk" or m.startswith("mavsdk.")]:
                 del sys.modules[name]
             sys.meta_path.insert(0, _AliasFinder())
-        if grpc_backend() == "server":
+        if backend == "server":
             _patch_grpc_server(ep)
         else:
             from harness.simclock import mavsdk_grpc_native
@@ -197,6 +233,9 @@ def _for_vehicle(url: str, ep: VehicleEndpoints | None) -> str:
     """``url`` as MAVSDK is to use it in a run: listening on a port announced to the mission's vehicle."""
     if ep is None:
         return url
+    from harness.simclock.installed import current
     from harness.simclock.simsocket import announce_listen_port
 
-    return mavsdk_url(url, ep, lambda: announce_listen_port(ep))
+    rt = current()
+    sim = rt is not None and rt.native is not None
+    return mavsdk_url(url, ep, lambda: announce_listen_port(ep, sim_clock=sim))

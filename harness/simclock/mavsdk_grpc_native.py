@@ -657,7 +657,14 @@ async def start_backend(native: Native, url: str, sysid: int, compid: int) -> Ba
     config.system_id = sysid
     config.component_id = compid
     mavsdk_async = native.asyncio.Mavsdk(config)
-    await mavsdk_async.add_any_connection(url)
+    try:
+        await mavsdk_async.add_any_connection(url)
+    except Exception as e:
+        # mavsdk_server logs the failed connection and exits, and the gRPC API's connect() then waits for a
+        # server that never answers (a script's asyncio.wait_for(drone.connect(...), 8) times out after 8 s)
+        log.error("mavsdk_server: connection to %s failed (%s); connect() waits for a server that is not there", url, e)
+        mavsdk_async.destroy()
+        await asyncio.get_running_loop().create_future()
     loop = asyncio.get_running_loop()
     raw = await loop.run_in_executor(None, mavsdk_async._mavsdk.first_autopilot, -1.0)
     if raw is None:  # pragma: no cover - a negative time-out waits forever
