@@ -94,7 +94,8 @@ class Autopilot:
         self.home: GeoPoint | None = None
         self.home_ned: tuple[float, float, float] | None = None
         self.failsafe = Failsafe.NONE
-        self._offboard_wall_ns = -(10**18)
+        self._offboard_t_ns = -(10**18)
+        """Sim time of the last offboard setpoint: PX4 in lockstep judges COM_OF_LOSS_T on its own (sim) clock."""
         if not cfg.supervise_hz > 0:
             raise ScenarioError(f"autopilot {cfg.vehicle}: supervise_hz must be > 0, got {cfg.supervise_hz}")
         self._super_period_ns = round(1e9 / cfg.supervise_hz)
@@ -211,7 +212,9 @@ class Autopilot:
         return (n, e)
 
     def offboard_age_s(self) -> float:
-        return (self.wall.now_ns() - self._offboard_wall_ns) * 1e-9
+        """Sim seconds since the last offboard setpoint (a mission's setpoints, and MAVSDK's resends, follow sim
+        time: on the wall clock a loaded machine's gap between two phases read as a lost setpoint stream)."""
+        return (self.core.t_ns - self._offboard_t_ns) * 1e-9
 
     def cut_motors(self, why: str) -> None:
         c = self.core
@@ -408,7 +411,7 @@ class Autopilot:
         if not finite(vals):
             return CommandResult.denied("offboard setpoint with NaN or infinite values")
         with self._lock:
-            self._offboard_wall_ns = self.wall.now_ns()
+            self._offboard_t_ns = self.core.t_ns
             self._offboard_sp, self._offboard_kind = sp, OffboardKind.SETPOINT
             if self.core.mode == FlightMode.OFFBOARD:
                 self._offboard_apply()
@@ -421,7 +424,7 @@ class Autopilot:
         if target.quat is not None and abs(math.sqrt(sum(v * v for v in target.quat)) - 1.0) > 0.05:
             return CommandResult.denied("attitude target quaternion is not normalised")
         with self._lock:
-            self._offboard_wall_ns = self.wall.now_ns()
+            self._offboard_t_ns = self.core.t_ns
             self._offboard_att, self._offboard_kind = target, OffboardKind.ATTITUDE
             if self.core.mode == FlightMode.OFFBOARD:
                 self._offboard_apply()
