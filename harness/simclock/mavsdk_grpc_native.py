@@ -365,10 +365,26 @@ class Backend:
         return inst
 
     def destroy(self) -> None:
+        """Release the native core: its system (with its plugins) and server component first, then the Mavsdk
+        instance, which aborts the process if anything it handed out is still alive."""
+        _alive.discard(self)
         try:
-            self.mavsdk.destroy()
+            if self.system is not None:
+                self.system._system.destroy()
+            if self._server_component is not None:
+                self._server_component.destroy()
+            self._plugins.clear()
+            if self.mavsdk is not None:
+                self.mavsdk.destroy()
         except Exception:  # pragma: no cover - best effort at exit
             log.debug("destroying the native Mavsdk failed", exc_info=True)
+
+
+_alive: set[Backend] = set()
+"""Every backend until ``destroy()``: the gRPC API's plugins, their channel and the backend reference each other,
+and when the garbage collector frees such a cycle it clears weak references before finalizers run, so the native
+``Mavsdk.__del__`` would find no systems to release first and ``mavsdk_destroy`` aborts the process ("A System
+… must not outlive the Mavsdk instance"; seen with MAVSDK's logfile_download.py at its end)."""
 
 
 def not_available(plugin: str, rpc: str) -> str:
@@ -669,7 +685,9 @@ async def start_backend(native: Native, url: str, sysid: int, compid: int) -> Ba
     raw = await loop.run_in_executor(None, mavsdk_async._mavsdk.first_autopilot, -1.0)
     if raw is None:  # pragma: no cover - a negative time-out waits forever
         raise ConnectionError(f"no autopilot on {url}")
-    return Backend(native, mavsdk_async, native.asyncio.System(raw))
+    backend = Backend(native, mavsdk_async, native.asyncio.System(raw))
+    _alive.add(backend)
+    return backend
 
 
 def install(rewrite_url: Callable[[str], str]) -> None:
