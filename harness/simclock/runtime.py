@@ -509,7 +509,14 @@ class SimRuntime:
     # -- internals -----------------------------------------------------------------------------
 
     def _tracked(self) -> bool:
-        return self._started and not threading.current_thread().name.startswith(INFRA_THREAD_PREFIX)
+        """Whether the calling thread's waits are sim-time waits: a script thread's. Not the harness's own, and not
+        a thread a C library made that runs a Python callback (MAVSDK's, ``threading._DummyThread``): the shim
+        counts it busy until the callback returns, so a sim-time wait there would wait for a phase that cannot
+        come (a callback that read the clock ``ZENO_READS`` times stalled a run)."""
+        if not self._started:
+            return False
+        t = threading.current_thread()
+        return not t.name.startswith(INFRA_THREAD_PREFIX) and not isinstance(t, threading._DummyThread)
 
     def _poke(self) -> None:
         if self.native is not None:

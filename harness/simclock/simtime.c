@@ -72,7 +72,15 @@ typedef struct {
     int fd;
     int64_t deadline;
     int64_t interval;
+    int64_t now_at;  /* the sim time of the last "fire now" */
+    int now_count;   /* how many in a row at that sim time */
 } simtimer;
+
+/* asio asks for "fire now" when its next timer is less than a microsecond away (it truncates to whole
+ * microseconds), then finds no timer due and asks again: on a clock that moves that ends within a microsecond,
+ * on sim time (frozen within a phase) it never would. After this many in one phase, the timer fires at the
+ * next phase instead: time passes, as it would. */
+#define FIRE_NOW_PER_PHASE 16
 
 typedef struct {
     const void *cond;
@@ -639,6 +647,16 @@ static int hs_timerfd_settime(int fd, int flags, const struct itimerspec *nv, st
         tm->deadline = v; /* on CLOCK_MONOTONIC, which reads sim time here */
     else
         tm->deadline = add_ns(now_ns, v);
+    if (tm->deadline <= now_ns) {
+        if (tm->now_at != now_ns) {
+            tm->now_at = now_ns;
+            tm->now_count = 0;
+        }
+        if (++tm->now_count > FIRE_NOW_PER_PHASE) {
+            tm->deadline = now_ns + 1;
+            TRACE("timer %d: fire-now again and again, at the next phase", fd);
+        }
+    }
     drain_fd(fd); /* re-arming discards expirations not yet read, as timerfd_settime does */
     if (tm->deadline <= now_ns && gate_open)
         fire_due_timers_locked();
