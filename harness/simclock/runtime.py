@@ -129,10 +129,8 @@ class SimRuntime:
         """Called (once between two phases) when script work became ready outside phase 0 on the wall
         clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
         self._wake_requested = False
-        self._holds = 0
         self._settling = False
         self._reads: dict[int, int] = {}
-        self._held_until_wall_ns = 0
         self.mavlink_fds: set[int] = set()
         """Descriptors of the script's sockets to its vehicle (``simsocket``)."""
         self.mavlink_sent = 0
@@ -302,12 +300,8 @@ class SimRuntime:
     def busy_threads(self) -> list[str]:
         """Where every thread that keeps phase 0 from ending is (diagnostics)."""
         with self._mu:
-            held = [f"{self._holds} request(s) to mavsdk_server in flight"] if self._holds else []
-            left_ns = self._held_until_wall_ns - self.wall.now_ns()
-            if left_ns > 0:
-                held.append(f"held {left_ns / 1e6:.1f} ms more for mavsdk_server to register a stream")
             native = [f"MAVSDK's threads: {self.native.describe()}"] if self.native and self.native.busy() else []
-            return held + native + [f"{t.name} at {where}" for t, where in self._busy_locked()]
+            return native + [f"{t.name} at {where}" for t, where in self._busy_locked()]
 
     def take_outbox(self) -> list[_Outgoing]:
         with self._mu:
@@ -581,28 +575,11 @@ class SimRuntime:
             self._script_threads[ident] = known
         return known
 
-    def hold(self) -> None:
-        """Keep the current phase 0 open (a request to a local service is in flight; see ``mavsdk_compat``)."""
-        with self._mu:
-            self._holds += 1
-
-    def unhold(self) -> None:
-        with self._mu:
-            self._holds = max(0, self._holds - 1)
-        self._poke()
-
-    def hold_for(self, wall_ns: int) -> None:
-        """Keep the current phase 0 open for ``wall_ns`` of wall time (a local service registers something the
-        script asked for and gives no signal when it is done; see ``mavsdk_compat``)."""
-        with self._mu:
-            self._held_until_wall_ns = max(self._held_until_wall_ns, self.wall.now_ns() + wall_ns)
-
     def _all_idle_locked(self) -> bool:
-        if self._held_until_wall_ns and self.wall.now_ns() < self._held_until_wall_ns:
-            return False
+        """The one idle predicate: no thread of MAVSDK's core is busy, and every script thread waits."""
         if self.native is not None and self.native.busy():
             return False
-        return not self._holds and not self._busy_locked(first_only=True)
+        return not self._busy_locked(first_only=True)
 
     def _busy_locked(self, first_only: bool = False) -> list[tuple[threading.Thread, str]]:
         busy: list[tuple[threading.Thread, str]] = []

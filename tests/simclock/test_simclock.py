@@ -14,7 +14,6 @@ import pytest
 
 from harness.channel import Channel, ChannelConfig
 from harness.channel.drivers import run_fake_physics
-from harness.core.clock import ManualClock
 from harness.simclock import patch
 from harness.simclock.runtime import SimRuntime
 
@@ -118,18 +117,6 @@ def test_patching_is_reversible_and_idempotent() -> None:
     assert (time.time, time.monotonic, time.sleep, datetime.datetime, threading.Condition.wait) == originals
     assert asyncio.get_event_loop_policy() is policy
     assert abs(time.time() - datetime.datetime.now().timestamp()) < 1
-
-
-def test_a_wall_clock_hold_keeps_phase_0_open_for_its_time_only() -> None:
-    """A new MAVSDK stream holds the phase for a fixed wall time (``mavsdk_compat.STREAM_SETUP_HOLD_NS``)."""
-    wall = ManualClock(start_ns=5_000_000_000)
-    rt = SimRuntime(epoch_ns=0, phase_period_ns=20_000_000, wall=wall)
-    rt.hold_for(20_000_000)
-    wall.advance(5_000_000)
-    rt.hold_for(10_000_000)  # a later, shorter hold does not cut the first one short
-    assert any("15.0 ms more" in b for b in rt.busy_threads())
-    wall.advance(15_000_000)
-    assert not any("ms more" in b for b in rt.busy_threads())
 
 
 def _phases_of(ch: Channel, name_part: str) -> int:
