@@ -289,6 +289,31 @@ class Autopilot:
             self.cut_motors("Disarmed" + (" (forced)" if force else ""))
             return CommandResult.accepted()
 
+    def reboot(self) -> CommandResult:
+        """PX4 SITL's reboot on the ground: the flight stack starts again in place (estimator, controllers,
+        navigator, home, failsafes) on the same parameters, sim clock, mission, fence and rally points (PX4
+        keeps those in its dataman file). Refused when armed."""
+        with self._lock:
+            old = self.core
+            if old.armed:
+                return CommandResult.denied("Reboot denied: disarm first")
+            cfg = self.config
+            core = FlightCore(
+                self.params, cfg.use_ground_truth, GeoRef(*cfg.origin) if cfg.origin is not None else None
+            )
+            core.t_ns = old.t_ns
+            core.nav.items = old.nav.items
+            core.fence.set_items(old.fence.items)
+            core.nav.mode_hooks.update(old.nav.mode_hooks)
+            self.core = core
+            self.home = self.home_ned = None
+            self.failsafe = Failsafe.NONE
+            self._offboard_kind = OffboardKind.NONE
+            self._offboard_sp = self._offboard_att = None
+            self._cache = None
+        self.say(Severity.INFO, "Rebooted: flight stack restarted")
+        return CommandResult.accepted()
+
     def _set_home_here(self) -> None:
         e = self.core.est
         self.home_ned = (e.pn, e.pe, e.pd)

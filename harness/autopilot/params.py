@@ -183,6 +183,30 @@ FLOWN_DEFS: tuple[ParamDef, ...] = (
 )
 
 ACCEPTED_NOT_FLOWN = "accepted, not flown"
+CALIBRATION_RESULT = "calibration result (accepted, not flown)"
+SITL_ACCEL_ID, SITL_GYRO_ID, SITL_MAG_ID = 1310988, 1310988, 197388
+"""PX4 SITL's simulated sensors' device ids (what its calibration stores in CAL_*0_ID)."""
+
+
+def _calibration_defs() -> tuple[ParamDef, ...]:
+    """PX4's per-instance calibration parameters of the first accelerometer, gyro and magnetometer: generated
+    by the firmware from templates, so absent from QGroundControl's metadata. The calibration service
+    (``mavlink/calibration.py``) writes them; the flight core does not read them."""
+    defs = []
+    for sensor, scaled in (("ACC", True), ("GYRO", False), ("MAG", True)):
+        defs.append(ParamDef(f"CAL_{sensor}0_ID", ParamType.INT32, 0, 0, 2139095040, "", CALIBRATION_RESULT, False))
+        defs.append(ParamDef(f"CAL_{sensor}0_PRIO", ParamType.INT32, -1, -1, 100, "", CALIBRATION_RESULT, False))
+        for axis in "XYZ":
+            defs.append(
+                ParamDef(f"CAL_{sensor}0_{axis}OFF", ParamType.FLOAT, 0.0, -1e3, 1e3, "", CALIBRATION_RESULT, False)
+            )
+            if scaled:
+                defs.append(
+                    ParamDef(
+                        f"CAL_{sensor}0_{axis}SCALE", ParamType.FLOAT, 1.0, 0.1, 3.0, "", CALIBRATION_RESULT, False
+                    )
+                )
+    return tuple(defs)
 
 
 def _all_defs() -> tuple[ParamDef, ...]:
@@ -201,6 +225,8 @@ def _all_defs() -> tuple[ParamDef, ...]:
         for m in px4_metadata().params
         if m.name not in flown
     }
+    for d in _calibration_defs():
+        others.setdefault(d.name, d)
     return tuple(sorted((*FLOWN_DEFS, *others.values()), key=lambda d: d.name))
 
 
