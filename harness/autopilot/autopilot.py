@@ -116,9 +116,35 @@ class Autopilot:
         self.follow = FollowTarget(self)
         self.flight_log: FlightLog | None = None
         """The vehicle's ULog (``harness.autopilot.flightlog``), when the run writes one."""
+        self._hook_modes()
+
+    def _hook_modes(self) -> None:
         hooks = self.core.nav.mode_hooks
         hooks[FlightMode.POSCTL] = hooks[FlightMode.ALTCTL] = self.manual._setpoint
         hooks[FlightMode.FOLLOW_TARGET] = self.follow.update
+
+    def reboot(self) -> CommandResult:
+        """Restart the flight stack in place, as a SITL reboot does (on the ground, disarmed): a new flight core
+        (estimator, controllers, modes, sticks) on the same parameters, the stored missions and fence kept, home
+        and failsafes forgotten. Sim time goes on; physics never stopped."""
+        with self._lock:
+            old = self.core
+            if old.armed:
+                return CommandResult.failed("Reboot refused: the vehicle is armed")
+            cfg = self.config
+            self.core = FlightCore(self.params, cfg.use_ground_truth, GeoRef(*cfg.origin) if cfg.origin else None)
+            self.core.nav.items = list(old.nav.items)
+            self.core.fence.set_items(old.fence.items)
+            self.core.t_ns = old.t_ns
+            self.home = self.home_ned = None
+            self.failsafe = Failsafe.NONE
+            self.supervisor = Supervisor()
+            self._offboard_kind, self._offboard_sp, self._offboard_att = OffboardKind.NONE, None, None
+            self.manual = ManualControl(self)
+            self.follow = FollowTarget(self)
+            self._hook_modes()
+            self._cache = None
+            return CommandResult.accepted()
 
     # ------------------------------------------------------------------ lockstep
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
@@ -288,31 +314,6 @@ class Autopilot:
                 return CommandResult.denied("Disarming denied: in air (land first, or force to kill the motors)")
             self.cut_motors("Disarmed" + (" (forced)" if force else ""))
             return CommandResult.accepted()
-
-    def reboot(self) -> CommandResult:
-        """PX4 SITL's reboot on the ground: the flight stack starts again in place (estimator, controllers,
-        navigator, home, failsafes) on the same parameters, sim clock, mission, fence and rally points (PX4
-        keeps those in its dataman file). Refused when armed."""
-        with self._lock:
-            old = self.core
-            if old.armed:
-                return CommandResult.denied("Reboot denied: disarm first")
-            cfg = self.config
-            core = FlightCore(
-                self.params, cfg.use_ground_truth, GeoRef(*cfg.origin) if cfg.origin is not None else None
-            )
-            core.t_ns = old.t_ns
-            core.nav.items = old.nav.items
-            core.fence.set_items(old.fence.items)
-            core.nav.mode_hooks.update(old.nav.mode_hooks)
-            self.core = core
-            self.home = self.home_ned = None
-            self.failsafe = Failsafe.NONE
-            self._offboard_kind = OffboardKind.NONE
-            self._offboard_sp = self._offboard_att = None
-            self._cache = None
-        self.say(Severity.INFO, "Rebooted: flight stack restarted")
-        return CommandResult.accepted()
 
     def _set_home_here(self) -> None:
         e = self.core.est

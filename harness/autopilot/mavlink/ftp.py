@@ -44,7 +44,9 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import AutopilotApi
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
+from harness.autopilot.mavlink.param_store import ParamStore, store_path
 from harness.autopilot.mavlink.service import Service
+from harness.autopilot.params import Params
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +88,9 @@ def vehicle_tree(run_dir: Path, vehicle: int, ulog: Path | None, start_unix_s: i
         day = root / "log" / time.strftime("%Y-%m-%d", stamp)
         day.mkdir(parents=True, exist_ok=True)
         link = day / time.strftime("%H_%M_%S.ulg", stamp)
+        for old in (root / "log").glob("*/*.ulg"):  # a run directory used again: the log was started anew
+            if old != link and old.is_symlink() and Path(os.path.realpath(old)) == Path(os.path.realpath(ulog)):
+                old.unlink()
         if not link.is_symlink() and not link.exists():
             link.symlink_to(os.path.relpath(ulog, day))
     params = root / "parameters.json"
@@ -100,6 +105,10 @@ def _tree_of(api: AutopilotApi, vehicle: int) -> Path | None:
     if flight_log is None:
         return None
     path: Path = flight_log.path
+    params = getattr(api, "params", None)
+    store = ParamStore(store_path(path.parent, vehicle))
+    if isinstance(params, Params) and not store.path.exists():
+        store.save(params)  # the file /parameters.json shows: saved values only (none changed yet)
     return vehicle_tree(path.parent, vehicle, path, flight_log.start_unix_us // 1_000_000)
 
 
@@ -135,7 +144,6 @@ class FtpService(Service):
         self._tree = tree if tree is not None else (lambda: _tree_of(api, vehicle))
         self._root: Path | None = None
         self._sessions: dict[int, _Session] = {}
-        self._next_session = 0
 
     @property
     def root(self) -> Path | None:
@@ -281,7 +289,11 @@ class FtpService(Service):
         for name in names[offset:]:
             try:
                 st = (path / name).stat()
-                entry = f"D{name}" if os.path.isdir(path / name) else f"F{name}\t{st.st_size}"
+                if os.path.isdir(path / name):
+                    entry = f"D{name}"
+                else:
+                    size = self._log_size(Path(os.path.realpath(path / name))) if name.endswith(".ulg") else None
+                    entry = f"F{name}\t{st.st_size if size is None else size}"
             except OSError:
                 entry = "S"  # a dangling link: skipped, as PX4 skips what it cannot show
             raw = entry.encode("utf-8") + b"\0"
@@ -313,10 +325,7 @@ class FtpService(Service):
         if len(self._sessions) >= MAX_SESSIONS:  # a client that vanished mid-transfer: its oldest session goes
             oldest = next(iter(self._sessions))
             self._sessions.pop(oldest).f.close()
-        sid = self._next_session
-        while sid in self._sessions:
-            sid = (sid + 1) & 0xFF
-        self._next_session = (sid + 1) & 0xFF
+        sid = min(set(range(MAX_SESSIONS)) - set(self._sessions))  # 0 when none is open: MAVSDK assumes session 0
         self._sessions[sid] = _Session(real, f, size, op != OP_OPEN_RO)
         return sid, size
 

@@ -14,8 +14,9 @@ import math
 from collections.abc import Mapping
 from pathlib import Path
 
-from harness.autopilot.api import AutopilotApi, CommandResult
+from harness.autopilot.api import AutopilotApi, CommandResult, Severity, VehicleState
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
+from harness.autopilot.mavlink.messages import Out
 from harness.autopilot.mavlink.param_store import reload_params
 from harness.autopilot.mavlink.service import CommandHandler, Service, outcome
 
@@ -30,6 +31,7 @@ class RebootService(Service):
         self.api = api
         self.vehicle = vehicle
         self.reboots = 0
+        self._said: list[str] = []
 
     def commands(self) -> Mapping[int, CommandHandler]:
         return {CMD_PREFLIGHT_REBOOT_SHUTDOWN: self._command}
@@ -59,4 +61,9 @@ class RebootService(Service):
         result: CommandResult = restart()
         if result.ok:
             self.reboots += 1
+            self._said.append("Rebooted: flight stack restarted")
         return result
+
+    def tick(self, state: VehicleState, now: int) -> list[Out]:
+        said, self._said = self._said, []
+        return [self.text(Severity.INFO, t) for t in said]
