@@ -89,6 +89,8 @@ def _last_attitude(gcs: Gcs) -> object:
 
 
 def test_gimbal_manager_discovery_control_and_attitude(gcs: Gcs, vehicle: _Vehicle) -> None:
+    vehicle.step_s(1.0)
+    assert not gcs.collect(0.3, {"GIMBAL_DEVICE_ATTITUDE_STATUS"})  # nobody used the gimbal yet: not streamed
     assert gcs.command(512, M.MAVLINK_MSG_ID_GIMBAL_MANAGER_INFORMATION).result == M.MAV_RESULT_ACCEPTED
     info = gcs.recv("GIMBAL_MANAGER_INFORMATION")
     assert info.gimbal_device_id == 1 and info.pitch_min == pytest.approx(-np.pi / 2)

@@ -5,7 +5,10 @@
   gimbal discovery asks after the first heartbeat);
 - GIMBAL_DEVICE_ATTITUDE_STATUS at 5 Hz (roll and pitch earth-stabilised, yaw in the vehicle frame,
   ``GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME``) and GIMBAL_MANAGER_STATUS at 1 Hz and after every change of
-  control; both are in the vehicle's tlog like everything sent;
+  control, from the first time a client shows it uses the gimbal (asks for either INFORMATION message, sends a
+  gimbal message or command): PX4 streams them always, but a MAVSDK that never touches its gimbal plugin
+  never asks, and the vehicles of a swarm that nobody points a camera on are spared 6 messages a second each
+  (SET_MESSAGE_INTERVAL starts or changes them at any time); both are in the vehicle's tlog like everything sent;
 - control: MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE (1001: param1/2 primary sysid/compid, 3/4 secondary; -1 =
   the sender takes it, -2 = leave, -3 = release); setpoints from anyone are obeyed while nobody holds
   control, otherwise from the primary (or secondary) controller only (PX4 ignores others);
@@ -22,7 +25,7 @@ the yaw target is held in the earth frame as the vehicle turns. Nothing of the g
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -106,10 +109,11 @@ class GimbalService(Service):
     message_ids = frozenset(
         {_M.MAVLINK_MSG_ID_GIMBAL_MANAGER_SET_ATTITUDE, _M.MAVLINK_MSG_ID_GIMBAL_MANAGER_SET_PITCHYAW}
     )
-    stream_defaults: Mapping[int, int] = {
+    STREAMS: Mapping[int, int] = {
         _M.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS: ATTITUDE_PERIOD_NS,
         _M.MAVLINK_MSG_ID_GIMBAL_MANAGER_STATUS: STATUS_PERIOD_NS,
     }
+    """Started when a client first uses the gimbal (see the module's docstring)."""
 
     def __init__(self, api: AutopilotApi, sysid: int) -> None:
         super().__init__()
@@ -120,6 +124,8 @@ class GimbalService(Service):
         self.secondary = (0, 0)
         self.sender = (0, 0)
         """(sysid, compid) of the command being executed."""
+        self._set_interval: Callable[[int, float], bool] | None = None
+        self.streaming = False
         self.builders: Mapping[int, Builder] = {
             _M.MAVLINK_MSG_ID_GIMBAL_MANAGER_INFORMATION: self._manager_information,
             _M.MAVLINK_MSG_ID_GIMBAL_DEVICE_INFORMATION: self._device_information,
@@ -127,14 +133,28 @@ class GimbalService(Service):
             _M.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS: self._attitude_status,
         }
 
+    def bind_streams(self, set_interval: Callable[[int, float], bool]) -> None:
+        """The server's SET_MESSAGE_INTERVAL (``StreamScheduler.set_interval``: message id, interval in µs)."""
+        self._set_interval = set_interval
+
+    def in_use(self) -> None:
+        """A client uses the gimbal: stream its attitude and the manager's status from now on."""
+        if self.streaming or self._set_interval is None:
+            return
+        self.streaming = True
+        for msg_id, period_ns in self.STREAMS.items():
+            self._set_interval(msg_id, period_ns / 1000)
+
     # ------------------------------------------------------------------ messages
     def _manager_information(self, mav: mavlink2.MAVLink, s: VehicleState, t_ms: int) -> MAVLinkMessage:
+        self.in_use()
         r = math.radians
         return mav.gimbal_manager_information_encode(
             t_ms, _CAPS, DEVICE_ID, 0.0, 0.0, r(PITCH_MIN), r(PITCH_MAX), r(YAW_MIN), r(YAW_MAX)
         )
 
     def _device_information(self, mav: mavlink2.MAVLink, s: VehicleState, t_ms: int) -> MAVLinkMessage:
+        self.in_use()
         r = math.radians
         caps = (
             _M.GIMBAL_DEVICE_CAP_FLAGS_HAS_NEUTRAL
@@ -247,6 +267,7 @@ class GimbalService(Service):
         return ""
 
     def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out]:
+        self.in_use()
         if m.gimbal_device_id not in (0, DEVICE_ID) or not self._may_control(origin.sysid, origin.compid):
             return []
         if m.get_msgId() == _M.MAVLINK_MSG_ID_GIMBAL_MANAGER_SET_ATTITUDE:
@@ -271,6 +292,7 @@ class GimbalService(Service):
         }
 
     def _cmd_pitchyaw(self, c: CommandIn) -> CommandOutcome:
+        self.in_use()
         p = c.params
         flags = int(p[4]) if math.isfinite(p[4]) else 0
         device = p[6]
@@ -282,6 +304,7 @@ class GimbalService(Service):
     def _cmd_configure(self, c: CommandIn) -> CommandOutcome:
         """Who controls the gimbal: -1 = the sender (``sender``, set by the registry from the command's
         origin), -2 = leave as is, -3 = release."""
+        self.in_use()
         sysid, compid = self.sender
         p = [v if math.isfinite(v) else -2.0 for v in c.params[:4]]
 
@@ -304,6 +327,7 @@ class GimbalService(Service):
         return (max(self.api.state().t_ns, 0) // 1_000_000) & 0xFFFFFFFF
 
     def _cmd_roi(self, c: CommandIn) -> CommandOutcome:
+        self.in_use()
         p = c.params
         if c.frame is not None:
             lat, lon = p[4] / 1e7, p[5] / 1e7

@@ -49,7 +49,7 @@ class Px4Dialect:
         self.stream_defaults: Mapping[int, int] = {**DEFAULT_INTERVALS_NS, **self.px4.stream_defaults}
 
     def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None:
-        self.px4.bind(mav)
+        self.px4.bind(mav, host.streams.set_interval)
 
     def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage:
         return heartbeat_message(mav, state)

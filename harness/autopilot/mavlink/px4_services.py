@@ -9,7 +9,7 @@ collects what falls due at each server tick. A service is one line in :func:`px4
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -46,9 +46,11 @@ class Px4Services:
             self.stream_defaults.update(s.stream_defaults)
             self._commands.update(s.commands())
 
-    def bind(self, mav: mavlink2.MAVLink) -> None:
+    def bind(self, mav: mavlink2.MAVLink, set_interval: Callable[[int, float], bool]) -> None:
+        """The server's encoder and its SET_MESSAGE_INTERVAL (streams a service starts when it is used)."""
         for s in self.services:
             s.bind(mav)
+        self.gimbal.bind_streams(set_interval)
 
     def command_handlers(self) -> Mapping[int, CommandHandler]:
         return self._commands
