@@ -60,7 +60,9 @@ class Kind(enum.Enum):
 
 def kind_of(c: CommandIn) -> Kind | str | None:
     """The calibration a command asks for; None to cancel; a str for an unsupported request."""
-    p = [0.0 if math.isnan(v) else v for v in c.params]
+    p = [0.0 if math.isnan(v) else v for v in c.params]  # MAVSDK sends NaN for what it leaves unset
+    if any(math.isinf(v) for v in p):
+        return "calibration: parameters must be finite"
     if all(v == 0 for v in p):
         return None
     if p[0] == 1:
@@ -113,7 +115,8 @@ class CalibrationService(Service):
                 self._queued.append((Severity.INFO, "[cal] calibration cancelled"))
             return outcome(CommandResult.accepted())
         if isinstance(kind, str):
-            return outcome(CommandResult.unsupported(kind))
+            bad = kind.endswith("finite")
+            return outcome(CommandResult.denied(kind) if bad else CommandResult.unsupported(kind))
         if self.api.state().armed:
             return outcome(CommandResult.denied("[cal] calibration denied: system armed"))
         if self._run is not None:

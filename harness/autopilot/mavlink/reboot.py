@@ -38,8 +38,10 @@ class RebootService(Service):
 
     def _command(self, c: CommandIn) -> CommandOutcome:
         action = c.params[0]
-        if math.isnan(action) or action == 0:
+        if math.isnan(action) or action == 0:  # MAVSDK sends NaN for what it leaves unset
             return outcome(CommandResult.accepted())
+        if math.isinf(action):
+            return outcome(CommandResult.denied("reboot: param1 must be 0, 1, 2 or 3"))
         if action != 1:
             return outcome(CommandResult.unsupported("only a reboot of the autopilot (param1 = 1) is simulated"))
         return outcome(self.reboot())
