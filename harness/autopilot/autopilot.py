@@ -117,9 +117,35 @@ class Autopilot:
         self.follow = FollowTarget(self)
         self.flight_log: FlightLog | None = None
         """The vehicle's ULog (``harness.autopilot.flightlog``), when the run writes one."""
+        self._hook_modes()
+
+    def _hook_modes(self) -> None:
         hooks = self.core.nav.mode_hooks
         hooks[FlightMode.POSCTL] = hooks[FlightMode.ALTCTL] = self.manual._setpoint
         hooks[FlightMode.FOLLOW_TARGET] = self.follow.update
+
+    def reboot(self) -> CommandResult:
+        """Restart the flight stack in place, as a SITL reboot does (on the ground, disarmed): a new flight core
+        (estimator, controllers, modes, sticks) on the same parameters, the stored missions and fence kept, home
+        and failsafes forgotten. Sim time goes on; physics never stopped."""
+        with self._lock:
+            old = self.core
+            if old.armed:
+                return CommandResult.failed("Reboot refused: the vehicle is armed")
+            cfg = self.config
+            self.core = FlightCore(self.params, cfg.use_ground_truth, GeoRef(*cfg.origin) if cfg.origin else None)
+            self.core.nav.items = list(old.nav.items)
+            self.core.fence.set_items(old.fence.items)
+            self.core.t_ns = old.t_ns
+            self.home = self.home_ned = None
+            self.failsafe = Failsafe.NONE
+            self.supervisor = Supervisor()
+            self._offboard_kind, self._offboard_sp, self._offboard_att = OffboardKind.NONE, None, None
+            self.manual = ManualControl(self)
+            self.follow = FollowTarget(self)
+            self._hook_modes()
+            self._cache = None
+            return CommandResult.accepted()
 
     # ------------------------------------------------------------------ lockstep
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:

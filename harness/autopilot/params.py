@@ -1,5 +1,11 @@
 """Parameters with PX4 names: definitions (type, default, range, unit) and a thread-safe registry.
 
+``FLOWN_DEFS`` are the parameters the flight core reads (their values, ranges and behaviour are the
+harness's own, kept as they were before PX4's full table came in). ``PARAM_DEFS`` is every parameter of
+PX4 (``harness.autopilot.params_data``, QGroundControl's metadata of PX4) plus those, sorted by name as PX4
+lists them: the others are *accepted, not flown* — read, set (range-checked), saved and logged, and
+nothing in the flight core changes with them.
+
 The registry keeps a fixed order (the MAVLink parameter protocol addresses parameters by index), tells
 subscribers about changes, and bumps ``version`` on every change so hot loops can re-read their gains
 only when something changed.
@@ -14,6 +20,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 from harness.autopilot.api import CommandResult
+from harness.autopilot.params_data import load as px4_metadata
 from harness.core.errors import ScenarioError
 
 
@@ -33,6 +40,8 @@ class ParamDef:
     max: float
     unit: str = ""
     description: str = ""
+    flown: bool = True
+    """False: PX4's parameter, accepted and stored; the flight core does not read it."""
 
 
 def _f(name: str, default: float, lo: float, hi: float, unit: str = "", desc: str = "") -> ParamDef:
@@ -45,7 +54,7 @@ def _i(name: str, default: int, lo: int, hi: int, desc: str = "") -> ParamDef:
 
 _D = math.radians
 
-PARAM_DEFS: tuple[ParamDef, ...] = (
+FLOWN_DEFS: tuple[ParamDef, ...] = (
     # Attitude estimator (PX4 attitude_estimator_q names)
     _f("ATT_W_ACC", 0.3, 0.0, 1.0, "", "Complementary filter weight of the accelerometer"),
     _f("ATT_W_MAG", 0.3, 0.0, 1.0, "", "Complementary filter weight of the magnetometer"),
@@ -172,6 +181,57 @@ PARAM_DEFS: tuple[ParamDef, ...] = (
     _i("MAV_TYPE", 2, 0, 22),
     _i("CBRK_SUPPLY_CHK", 0, 0, 894281),
 )
+
+ACCEPTED_NOT_FLOWN = "accepted, not flown"
+CALIBRATION_RESULT = "calibration result (accepted, not flown)"
+SITL_ACCEL_ID, SITL_GYRO_ID, SITL_MAG_ID = 1310988, 1310988, 197388
+"""PX4 SITL's simulated sensors' device ids (what its calibration stores in CAL_*0_ID)."""
+
+
+def _calibration_defs() -> tuple[ParamDef, ...]:
+    """PX4's per-instance calibration parameters of the first accelerometer, gyro and magnetometer: generated
+    by the firmware from templates, so absent from QGroundControl's metadata. The calibration service
+    (``mavlink/calibration.py``) writes them; the flight core does not read them."""
+    defs = []
+    for sensor, scaled in (("ACC", True), ("GYRO", False), ("MAG", True)):
+        defs.append(ParamDef(f"CAL_{sensor}0_ID", ParamType.INT32, 0, 0, 2139095040, "", CALIBRATION_RESULT, False))
+        defs.append(ParamDef(f"CAL_{sensor}0_PRIO", ParamType.INT32, -1, -1, 100, "", CALIBRATION_RESULT, False))
+        for axis in "XYZ":
+            defs.append(
+                ParamDef(f"CAL_{sensor}0_{axis}OFF", ParamType.FLOAT, 0.0, -1e3, 1e3, "", CALIBRATION_RESULT, False)
+            )
+            if scaled:
+                defs.append(
+                    ParamDef(
+                        f"CAL_{sensor}0_{axis}SCALE", ParamType.FLOAT, 1.0, 0.1, 3.0, "", CALIBRATION_RESULT, False
+                    )
+                )
+    return tuple(defs)
+
+
+def _all_defs() -> tuple[ParamDef, ...]:
+    flown = {d.name: d for d in FLOWN_DEFS}
+    others = {
+        m.name: ParamDef(
+            m.name,
+            ParamType.INT32 if m.is_int else ParamType.FLOAT,
+            m.default,
+            m.min,
+            m.max,
+            m.unit,
+            ACCEPTED_NOT_FLOWN,
+            flown=False,
+        )
+        for m in px4_metadata().params
+        if m.name not in flown
+    }
+    for d in _calibration_defs():
+        others.setdefault(d.name, d)
+    return tuple(sorted((*FLOWN_DEFS, *others.values()), key=lambda d: d.name))
+
+
+PARAM_DEFS: tuple[ParamDef, ...] = _all_defs()
+"""Every parameter of a PX4 vehicle, sorted by name."""
 
 
 class Params:

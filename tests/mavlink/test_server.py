@@ -121,7 +121,8 @@ def test_param_set_is_echoed_with_same_type_and_value(gcs: Gcs, idle_rig: Rig) -
 
 def test_commands_are_acked_unsupported_and_refusals_have_reasons(gcs: Gcs, idle_rig: Rig) -> None:
     assert gcs.command(31000).result == M.MAV_RESULT_UNSUPPORTED  # MAV_CMD_USER_1
-    assert gcs.command(246, 1.0).result == M.MAV_RESULT_UNSUPPORTED  # reboot: not offered
+    assert gcs.command(246, 3.0).result == M.MAV_RESULT_UNSUPPORTED  # reboot to the bootloader: not simulated
+    assert gcs.command(241, 0, 0, 1).result == M.MAV_RESULT_UNSUPPORTED  # baro calibration: not simulated
     ack = gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0.5)
     assert ack.result == M.MAV_RESULT_DENIED
     assert "param1" in gcs.recv("STATUSTEXT").text
@@ -136,7 +137,7 @@ def test_commands_are_acked_unsupported_and_refusals_have_reasons(gcs: Gcs, idle
     assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 1, 0).result == M.MAV_RESULT_DENIED  # MANUAL: no RC
     assert gcs.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_DENIED  # OFFBOARD: no setpoint
     c = idle_rig.server.counters()
-    assert c.commands["UNSUPPORTED"] == 2 and c.commands["DENIED"] >= 6
+    assert c.commands["UNSUPPORTED"] == 3 and c.commands["DENIED"] >= 6
     assert c.commands_by_id[M.MAV_CMD_COMPONENT_ARM_DISARM] == {"DENIED": 1}
 
 

@@ -195,6 +195,8 @@ def test_fuzz_100k_while_hovering(gcs: Gcs) -> None:
 
 _NASTY = (float("nan"), float("inf"), -float("inf"), 1e38, -1e38, 0.0, -1.0, 1.0, 21196.0, 3.0e9)
 _CMDS = (16, 20, 21, 22, 34, 176, 178, 179, 192, 300, 400, 410, 420, 511, 512, 520, 246, 31000, 0, 65535)
+_PX4_SITL_CMDS = (241, 246, 1000, 1001, 195, 197)
+"""PX4 SITL's own services' commands (calibration, reboot, gimbal), fuzzed after the others."""
 
 
 def _nasty(rng: np.random.Generator) -> float:
@@ -220,8 +222,14 @@ def test_valid_frames_with_hostile_values_are_all_answered(gcs: Gcs, idle_rig: R
             gcs.send(mav.command_long_encode(1, 1, cmd, 0, *p))
         ack = gcs.recv("COMMAND_ACK", 2.0, functools.partial(_is_command, cmd))
         assert ack.result in (0, 1, 2, 3, 4), ack
-        if cmd in (31000, 0, 65535, 246):
+        if cmd in (31000, 0, 65535):
             assert ack.result == M.MAV_RESULT_UNSUPPORTED
+    for _ in range(60):  # the same for PX4 SITL's services (a reboot may be among them: the rig is idle)
+        cmd = int(_PX4_SITL_CMDS[int(rng.integers(len(_PX4_SITL_CMDS)))])
+        p = [_nasty(rng) for _ in range(7)]
+        gcs.send(mav.command_long_encode(1, 1, cmd, 0, *p))
+        ack = gcs.recv("COMMAND_ACK", 2.0, functools.partial(_is_command, cmd))
+        assert ack.result in (0, 1, 2, 3, 4), ack
     for _ in range(100):  # parameters, mission items and setpoints with hostile values
         gcs.send(mav.param_set_encode(1, 1, b"MPC_XY_VEL_MAX", _nasty(rng), int(rng.integers(0, 12))))
         gcs.send(
@@ -254,6 +262,6 @@ def test_valid_frames_with_hostile_values_are_all_answered(gcs: Gcs, idle_rig: R
     gcs.collect(0.3)
     c = idle_rig.server.counters()
     assert c.handler_errors == 0
-    assert sum(c.commands.values()) == 200
+    assert sum(c.commands.values()) == 260  # 200 + 60 of PX4 SITL's services
     assert 0.0 <= idle_rig.ap.params["MPC_XY_VEL_MAX"] <= 20.0  # only in-range values were taken
     assert gcs.command(512, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION).result == M.MAV_RESULT_ACCEPTED

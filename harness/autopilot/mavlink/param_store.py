@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import threading
+from collections.abc import Mapping
 from pathlib import Path
 
 from harness.autopilot.params import Params
@@ -70,3 +71,11 @@ def persist_params(params: Params, run_dir: Path, vehicle: int) -> list[str]:
 
     params.subscribe(on_change)
     return refused
+
+
+def reload_params(params: Params, run_dir: Path | None, vehicle: int, overrides: Mapping[str, float]) -> list[str]:
+    """Parameters as a vehicle starting now would have them: defaults, the run's overrides, then the saved
+    file (which a ground station may have replaced, e.g. over MAVFTP). Returns the reasons of values refused."""
+    saved = ParamStore(store_path(run_dir, vehicle)).load() if run_dir is not None else {}
+    target = {d.name: d.default for d in params.defs} | dict(overrides) | saved
+    return params.update({n: v for n, v in target.items() if n in params and params[n] != v})

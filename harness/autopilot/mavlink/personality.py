@@ -14,8 +14,9 @@ dialect. A :class:`~harness.autopilot.mavlink.dialect_api.Dialect` is the thin l
 - ``tick``: periodic extras (ArduPilot's PreArm reports, the region of interest);
 - ``mission_float_form`` / ``param_bytewise``: protocol conventions.
 
-PX4 is the identity of the services themselves (:class:`Px4Dialect` adds nothing). A third firmware is one
-module with a ``Dialect`` class and a line in ``_FACTORIES``.
+PX4 is the identity of the services themselves; :class:`Px4Dialect` adds PX4 SITL's own services
+(calibration, gimbal, MAVFTP, shell, reboot: ``px4_services.py``). A third firmware is one module with a
+``Dialect`` class and a line in ``_FACTORIES``.
 """
 
 from __future__ import annotations
@@ -30,23 +31,25 @@ from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.dialect_api import Dialect, DialectHost
 from harness.autopilot.mavlink.heartbeat import heartbeat_message
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
+from harness.autopilot.mavlink.px4_services import Px4Services
 from harness.autopilot.mavlink.telemetry import DEFAULT_INTERVALS_NS, Builder
 from harness.autopilot.mavlink.version import autopilot_version
 
 
 class Px4Dialect:
-    """PX4: the services as they are."""
+    """PX4: the services as they are, plus PX4 SITL's own (``px4_services.py``)."""
 
     mission_float_form = False
     param_bytewise = True
 
-    def __init__(self, api: AutopilotApi) -> None:
+    def __init__(self, api: AutopilotApi, sysid: int = 1) -> None:
         self.api = api
-        self.builders: Mapping[int, Builder] = {}
-        self.stream_defaults: Mapping[int, int] = DEFAULT_INTERVALS_NS
+        self.px4 = Px4Services(api, sysid)
+        self.builders: Mapping[int, Builder] = self.px4.builders
+        self.stream_defaults: Mapping[int, int] = {**DEFAULT_INTERVALS_NS, **self.px4.stream_defaults}
 
     def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None:
-        pass
+        self.px4.bind(mav, host.streams.set_interval)
 
     def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage:
         return heartbeat_message(mav, state)
@@ -55,13 +58,13 @@ class Px4Dialect:
         return autopilot_version(mav, sysid)
 
     def command_handlers(self) -> Mapping[int, Callable[[CommandIn], CommandOutcome]]:
-        return {}
+        return self.px4.command_handlers()
 
     def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out] | None:
-        return None
+        return self.px4.handle(m, origin, now)
 
     def tick(self, state: VehicleState, now: int) -> list[Out]:
-        return []
+        return self.px4.tick(state, now)
 
 
 def _ardupilot(api: AutopilotApi, sysid: int) -> Dialect:
@@ -71,7 +74,7 @@ def _ardupilot(api: AutopilotApi, sysid: int) -> Dialect:
 
 
 _FACTORIES: dict[Firmware, Callable[[AutopilotApi, int], Dialect]] = {
-    Firmware.PX4: lambda api, _sysid: Px4Dialect(api),
+    Firmware.PX4: Px4Dialect,
     Firmware.ARDUPILOT: _ardupilot,
 }
 
