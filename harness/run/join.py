@@ -31,6 +31,7 @@ from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError
+from harness.core.files import script_file
 from harness.run import tree
 from harness.run.children import Children
 from harness.run.ports import GCS_PORT, PX4_API_BASE, allocate
@@ -78,8 +79,7 @@ def plan_from_args(a: argparse.Namespace, rest: list[str], progress: Callable[[s
     """The plan of ``harness join`` from its command line (``rest``: the missions' arguments)."""
     missions = [MissionPlan(Path(m), tuple(rest)) for m in a.mission]
     for m in missions:
-        if not m.script.is_file():
-            raise ScenarioError(f"--mission {m.script}: the file does not exist")
+        script_file(m.script, "--mission")
     if len(missions) == 1:
         missions = missions * a.vehicles
     return JoinPlan(
