@@ -25,6 +25,7 @@ from harness.cli_run import (
 )
 from harness.core import lifeline
 from harness.core.errors import HarnessError, ScenarioError
+from harness.core.files import script_file
 
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
@@ -39,9 +40,7 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
     if not channel:
         raise ScenarioError("harness mission: no channel given (use --channel ADDRESS or set HARNESS_CHANNEL)")
     vehicle = a.vehicle if a.vehicle is not None else int(os.environ.get("HARNESS_VEHICLE", "0"))
-    script = Path(a.script)
-    if not script.is_file():
-        raise ScenarioError(f"harness mission: script {script} does not exist")
+    script = script_file(Path(a.script), "harness mission: script")
     name = a.name or f"mission:{script.name}:{vehicle}"
     hooks = MissionHooks(
         report=lambda line: print(f"harness mission: {line}", file=sys.stderr), end_process=_end_mission
@@ -95,8 +94,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
 
     missions = [MissionPlan(Path(m), tuple(script_args or ())) for m in a.mission]
     for m in missions:
-        if not m.script.is_file():
-            raise ScenarioError(f"--mission {m.script}: the file does not exist")
+        script_file(m.script, "--mission")
     vehicles = a.vehicles if a.vehicles is not None else max(1, len(missions))
     swarm_mission = _swarm_mission(a, script_args)
     if swarm_mission is not None and a.vehicles is None and not missions:
@@ -153,8 +151,7 @@ def _swarm_mission(a: argparse.Namespace, script_args: list[str] | None) -> Miss
     path = getattr(a, "swarm_mission", None)
     if path is None:
         return None
-    if not Path(path).is_file():
-        raise ScenarioError(f"--swarm-mission {path}: the file does not exist")
+    script_file(Path(path), "--swarm-mission")
     return MissionPlan(Path(path), tuple(script_args or ()))
 
 
@@ -509,6 +506,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if a.verbose > 1 else logging.INFO if a.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    if a.verbose == 0:
+        from harness.record.sink import QUIET_RERUN_LOG
+
+        os.environ.setdefault("RUST_LOG", QUIET_RERUN_LOG)
     try:
         return int(a.func(a, unknown + script_args))
     except HarnessError as exc:

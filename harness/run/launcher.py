@@ -33,8 +33,9 @@ from harness.channel import Channel, ChannelConfig
 from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError
+from harness.core.files import RecordingError, writable_dir
 from harness.record.sample import VehicleSample, WorldEvent
-from harness.record.sink import WorldSink, open_world
+from harness.record.sink import WorldSink, WorldTee, open_world
 from harness.record.status import Checkpoint
 from harness.run import swarm, tree
 from harness.run.children import Children
@@ -64,13 +65,15 @@ class Launcher:
         check_plan(plan)  # every setting within its bounds before anything starts (limits.py)
         self.plan = plan
         self.clock = clock
-        plan.out.mkdir(parents=True, exist_ok=True)
+        writable_dir(plan.out)  # a read-only or full file system, a file in the way: one line, nothing started
         self.epoch_ns = clock.unix_ns() // NS_PER_S * NS_PER_S
         self.paused = threading.Event()
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
         self._aps: dict[int, Any] = {}
         """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
+        self._attached: list[Any] = []
+        """Their MAVLink sides (with their tlog and ULog writers)."""
         self._checkpoint: Checkpoint | None = None
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
@@ -97,7 +100,10 @@ class Launcher:
         # each autopilot host steps its vehicles' physics too (configured by this file); this process the rest
         in_hosts = {v for group in self._autopilot_groups() for v in group}
         if in_hosts:
-            (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
+            try:
+                (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
+            except OSError as exc:
+                raise RecordingError.of(plan.out / PHYSICS_FILE, exc) from None
         phys: Any = None
         """This process's share of the physics: built while the children start (they import meanwhile)."""
         channel = Channel(
@@ -118,7 +124,8 @@ class Launcher:
         status, message = RunStatus.OK, ""
         wall0 = self.clock.now_ns()
         t_ns = 0
-        ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
+        # harness sitl sends to its ground station port whoever else does (a batch run: one of its own then)
+        ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port, gcs_always=not self._tcp_sim_clients)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         close_local: Callable[[], None] | None = None
@@ -136,7 +143,7 @@ class Launcher:
                 ).to_json()
                 | extra()
             ),
-            world.mcap.flush,
+            lambda: self._flush_recordings(world),
             clock=clock,
         )
         self._checkpoint.write()
@@ -150,6 +157,11 @@ class Launcher:
                         f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
                         f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
                     )
+                    if ports.shared:
+                        plan.progress(
+                            f"MAVLink: another harness run also sends to udp port {self.gcs_port}: a ground station "
+                            "there sees both runs' vehicles"
+                        )
                     ardupilot = [i for i in range(plan.vehicles) if plan.firmware_of(i) is Firmware.ARDUPILOT]
                     if ardupilot:
                         step = plan.tcp_port_step
@@ -198,6 +210,11 @@ class Launcher:
                 if close_local is not None:  # first: the MAVLink thread would compete with the recorders' closing
                     close_local()
                 world.close()
+        lost = _unique(world.errors + self._log_errors())
+        if lost and not (status == RunStatus.FAILED and message == str(lost[0])):
+            status, message = RunStatus.FAILED, str(lost[0])
+        if len(lost) > 1:
+            message += "; also " + ", ".join(str(e.path) for e in lost[1:])
         wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns if phys is not None else 0
         exits = {e.vehicle: e for e in channel.mission_exits}
@@ -219,8 +236,23 @@ class Launcher:
         if any(s.crashed for s in summaries) and status == RunStatus.OK:
             status, message = RunStatus.FAILED, "a vehicle crashed"
         result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
-        write_summary(plan.out, result, self._summary_extra())
+        try:
+            write_summary(plan.out, result, self._summary_extra())
+        except RecordingError as exc:  # the summary still says "running": read back, the run reads as killed
+            result.status, result.message = RunStatus.FAILED, f"{message}; {exc}" if message else str(exc)
         return result
+
+    def _flush_recordings(self, world: WorldTee) -> None:
+        """Every second: ``world.mcap``'s chunk in progress to disk, and a log that could not be written stops
+        the run (:class:`RecordingError`, naming the file)."""
+        world.flush_mcap()
+        lost = self._log_errors()
+        if lost:
+            raise lost[0]
+
+    def _log_errors(self) -> list[RecordingError]:
+        """The vehicles' logs in this process (tlogs, ULogs) that could not be written."""
+        return [RecordingError.of(path, exc) for handle in self._attached for path, exc in handle.write_errors()]
 
     def _summary_extra(self) -> dict[str, Any]:
         plan = self.plan
@@ -286,6 +318,7 @@ class Launcher:
         hub.start()  # once every server is in: an add to a running hub waits for its thread
 
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
+        self._attached = attached
         return lambda: close_mavlink(hub, attached)
 
     def _start_children(self, sup: Any, address: str, pump: Callable[[], None] = lambda: None) -> None:
@@ -532,6 +565,14 @@ def _root_address(plan: LaunchPlan) -> str:
     if sys.platform == "linux":
         return f"unix://@{name}"
     return f"unix://{Path(tempfile.gettempdir()) / f'{name}.sock'}"
+
+
+def _unique(errors: list[RecordingError]) -> list[RecordingError]:
+    """The first failure of each file, in the order they were found."""
+    seen: dict[Path, RecordingError] = {}
+    for e in errors:
+        seen.setdefault(e.path, e)
+    return list(seen.values())
 
 
 def _all_joined(subs: list[tuple[str, str]], expected: int, sup: Children) -> bool:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from harness.record.status import KILLED, RUNNING, write_json
+from harness.record.status import KILLED, RUNNING, write_final_json
 
 
 class RunStatus(enum.StrEnum):
@@ -69,5 +69,6 @@ class RunResult:
 
 
 def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
-    """The final ``summary.json`` (atomically; it replaces the "running" checkpoints)."""
-    write_json(out / "summary.json", result.to_json() | extra | {"finished": True})
+    """The final ``summary.json`` (atomically; it replaces the "running" checkpoints; in place when the disk is
+    full). Raises :class:`~harness.core.files.RecordingError` when it cannot be written at all."""
+    write_final_json(out / "summary.json", result.to_json() | extra | {"finished": True})
