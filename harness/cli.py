@@ -240,7 +240,8 @@ def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewe
         print(result.message, file=sys.stderr)
     for v in result.vehicles:
         print(
-            f"  vehicle {v.id}: mission exit {v.mission_exit_code}, max altitude {v.max_altitude_m:.1f} m, "
+            f"  vehicle {v.id}: mission exit {_exit_text(v.mission_exit_code, v.mission_exit_reason)}, "
+            f"max altitude {v.max_altitude_m:.1f} m, "
             f"final NED {tuple(round(x, 1) for x in v.final_position_ned_m)}, landed {v.landed}"
         )
     if a.plot:
@@ -261,6 +262,14 @@ def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewe
         except KeyboardInterrupt:
             pass
     return result.exit_code
+
+
+def _exit_text(code: int | None, reason: str) -> str:
+    """``0``, ``1``, ``-9 (killed by SIGKILL)``, ``-1 (dropped: stalled ...)``: the code, and how it came to be
+    when the code alone does not say."""
+    if code is None:
+        return "none (still running at the end)"
+    return f"{code} ({reason})" if code < 0 and reason else str(code)
 
 
 def _cmd_view(a: argparse.Namespace, rest: list[str]) -> int:

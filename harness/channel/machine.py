@@ -371,7 +371,9 @@ class TickMachine(Membership):
         )
         message = f"{peer.label}{peer.vehicle_note} {why}"
         self.faults.append(Fault(peer.name, kind.name, peer.vehicle, why, self.tick, fatal))
-        log.log(logging.INFO if fatal else logging.ERROR, "channel %s: %s", self.name, message)
+        # a dropped mission is reported with the run's result, how it ended (its exit status) included
+        quiet = fatal or kind == p.PeerKind.TYPE0
+        log.log(logging.INFO if quiet else logging.ERROR, "channel %s: %s", self.name, message)
         self.close(peer, p.encode(p.Error(code, message, fatal=True)))
         if kind == p.PeerKind.TYPE0:
             self.mission_exits.append(MissionExit(peer.name, peer.vehicle, -1, f"dropped: {why}"))

@@ -30,7 +30,7 @@ from pathlib import Path
 from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
 from harness.core.clock import NS_PER_S, WALL, Clock
-from harness.core.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import script_file
 from harness.run import tree
 from harness.run.children import Children
@@ -126,8 +126,8 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
             if plan.progress is not None:
                 plan.progress(f"joined {plan.parent} as {channel.config.name}: vehicles {plan.first_vehicle}-{last}")
             message = _supervise(channel, sup)
-        except KeyboardInterrupt:
-            message = "stopped by Ctrl-C"
+        except KeyboardInterrupt as exc:
+            message = stop_reason(exc)
         except SimulationError as exc:
             message = str(exc)
         finally:

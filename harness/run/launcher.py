@@ -32,13 +32,14 @@ from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
 from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
-from harness.core.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import RecordingError, writable_dir
 from harness.record.sample import VehicleSample, WorldEvent
 from harness.record.sink import WorldSink, WorldTee, open_world
 from harness.record.status import Checkpoint
 from harness.run import swarm, tree
 from harness.run.children import Children
+from harness.run.exits import settle
 from harness.run.ledger import Ledger, Row
 from harness.run.link import NativeLink
 from harness.run.ports import allocate
@@ -197,8 +198,8 @@ class Launcher:
                     status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
                 finally:
                     gc.unfreeze()
-            except KeyboardInterrupt:
-                status, message = RunStatus.INTERRUPTED, "stopped by Ctrl-C"
+            except KeyboardInterrupt as exc:
+                status, message = RunStatus.INTERRUPTED, stop_reason(exc)
                 world.interrupted()
             except SimulationError as exc:
                 status, message = RunStatus.FAILED, str(exc)
@@ -210,6 +211,8 @@ class Launcher:
                 if close_local is not None:  # first: the MAVLink thread would compete with the recorders' closing
                     close_local()
                 world.close()
+            # a mission the channel saw only disconnect (os._exit, kill -9): its process says how it ended
+            settled = settle(channel.mission_exits, sup.procs, self._mission_process, wait_s=2.0)
         lost = _unique(world.errors + self._log_errors())
         if lost and not (status == RunStatus.FAILED and message == str(lost[0])):
             status, message = RunStatus.FAILED, str(lost[0])
@@ -224,15 +227,16 @@ class Launcher:
             if s.mission is not None:
                 e = swarm_end if s.id < plan.vehicles and not _own_mission(plan, s.id) else exits.get(s.id)
                 s.mission_exit_code = e.exit_code if e is not None else None
+                s.mission_exit_reason = e.reason if e is not None else ""
                 if status == RunStatus.OK and (e is None or e.exit_code != 0):
                     status = RunStatus.FAILED
                     message = message or (
                         f"the mission of vehicle {s.id} was still running when the run ended at "
                         f"{t_ns / NS_PER_S:.1f} s of sim time"
                         if e is None
-                        else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
+                        else f"the mission of vehicle {s.id} ended: {e.reason}"
                     )
-        faults = [f.__dict__ for f in channel.faults]
+        faults = [f.__dict__ for f in channel.faults if f.peer not in settled]
         if any(s.crashed for s in summaries) and status == RunStatus.OK:
             status, message = RunStatus.FAILED, "a vehicle crashed"
         result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
@@ -419,6 +423,12 @@ class Launcher:
         by what the root does besides (:data:`tree.ROOT_OVERHEAD`)."""
         in_process = self.plan.autopilots == AutopilotPlacement.IN_PROCESS
         return tree.worker_groups(self.plan.vehicles, self.plan.workers, tree.ROOT_OVERHEAD if in_process else 0.0)
+
+    def _mission_process(self, vehicle: int) -> str | None:
+        """The name of the process (in ``Children``) of ``vehicle``'s mission, or of the swarm mission."""
+        if vehicle == swarm.SWARM_VEHICLE:
+            return "swarm-mission" if self.plan.swarm_mission is not None else None
+        return f"mission-{vehicle}" if 0 <= vehicle < self.plan.vehicles else None
 
     def _tcp_port(self, vehicle: int) -> int:
         return self.tcp_port_base + self.plan.tcp_port_step * vehicle

@@ -32,6 +32,10 @@ class VehicleSummary:
     id: int
     mission: str | None
     mission_exit_code: int | None = None
+    """As the mission ended: its exit code, or minus the signal that killed it (``-9``); -1 when the channel
+    dropped it while it ran on; None while it still ran when the run ended."""
+    mission_exit_reason: str = ""
+    """How it ended, in words (``script exited with 0``, ``killed by SIGKILL``, ``dropped: stalled ...``)."""
     max_altitude_m: float = 0.0
     final_position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     landed: bool = True
