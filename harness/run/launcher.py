@@ -42,6 +42,7 @@ from harness.run.children import Children
 from harness.run.exits import settle
 from harness.run.ledger import Ledger, Row
 from harness.run.link import NativeLink
+from harness.run.pacing import Pacer
 from harness.run.ports import allocate
 from harness.run.result import RunResult, RunStatus, VehicleSummary, write_summary
 from harness.scenario.limits import check_plan
@@ -445,6 +446,7 @@ class Launcher:
         link = NativeLink(channel, self._aps)
         paused_once = False
         wall0 = self.clock.now_ns()
+        pacer = Pacer(plan.speed, wall0) if plan.speed is not None else None
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
         own = phys.owned
@@ -470,11 +472,12 @@ class Launcher:
                 while self.paused.is_set():
                     self.clock.sleep_ns(20_000_000)
                 stalled = self.clock.now_ns() - stopped
-                wall0 += stalled  # pacing resumes from here, it does not rush to catch up
+                wall0 += stalled
+                if pacer is not None:
+                    pacer.shift(stalled)  # pacing resumes from here, it does not rush to catch up
                 world.event(t_ns, WorldEvent.RESUMED, {"paused_wall_s": stalled / NS_PER_S})
-            if plan.speed is not None:
-                lag = wall0 + int(t_ns / plan.speed) - self.clock.now_ns()
-                self.clock.sleep_ns(lag)
+            if pacer is not None:  # a rate, not a schedule: after a stall the run goes on at the speed asked
+                self.clock.sleep_ns(pacer.wait_ns(t_ns, self.clock.now_ns()))
             tick_start = self.clock.now_ns()
             phase = tick % plan.phase_every == 0
             etas = link.exchange(t_ns, tick, frames, elsewhere if phase else None)
