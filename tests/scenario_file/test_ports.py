@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import random
 import socket
+import tempfile
+from pathlib import Path
+
+import pytest
 
 from harness.run.ports import allocate, ephemeral_range
 
@@ -28,3 +32,21 @@ def test_standard_ports_when_free_else_a_block_below_the_ephemeral_range() -> No
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind(("127.0.0.1", 24550))
     s.close()
+
+
+def test_gcs_port_a_listener_holds_is_still_the_destination(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A ground station listening on the port does not move the vehicles elsewhere; another run holding it does
+    (``harness sitl`` sends there all the same). ``tests/run/test_user_faults.py``: the same with QGC's 14550."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # this test's locks only
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    listener.bind(("127.0.0.1", 0))
+    gcs = listener.getsockname()[1]
+    try:
+        with allocate(2, api_base=24580, gcs=gcs) as first:
+            assert first.gcs == gcs and not first.shared  # a ground station listening: that is what it is for
+            with allocate(2, api_base=24580, gcs=gcs) as second:  # another run holds it: a port of its own
+                assert second.gcs != gcs and second.gcs not in (second.api_base, second.api_base + 1)
+            with allocate(2, api_base=24580, gcs=gcs, gcs_always=True) as sitl:  # harness sitl: there anyway
+                assert sitl.gcs == gcs and sitl.shared
+    finally:
+        listener.close()
