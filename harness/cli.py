@@ -249,11 +249,12 @@ def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewe
 
         make_plots(plan.out)
         print(f"plots: {plan.out / 'index.html'}")
-    if (plan.out / "world.rrd").is_file():
-        print(f"3D view: harness view {plan.out}")
-    else:
-        from harness.record.sink import INSTALL_HINT
+    from harness.record.sink import INSTALL_HINT, rerun_available
 
+    rrd = plan.out / "world.rrd"
+    if rrd.is_file() and str(rrd) not in result.incomplete:
+        print(f"3D view: harness view {plan.out}")
+    elif not rerun_available():
         print(f"3D view: not recorded ({INSTALL_HINT})")
     for viewer in natives:
         print("the viewer stays open until you close it (Ctrl-C closes it too)", flush=True)

@@ -116,6 +116,8 @@ class FlightLog:
         self._status: tuple[object, ...] = ()
         self.closed = False
         self.error: OSError | None = None
+        self._size = 0
+        """Bytes written (the file's size: it was created empty)."""
 
     def text(self, t_ns: int, severity: Severity, text: str) -> None:
         if not self.closed:
@@ -169,14 +171,16 @@ class FlightLog:
         """Write what is buffered; the file's size, which ends on a message boundary. A write that fails (a
         full disk) closes the log and is kept in :attr:`error`: the vehicle flies on, the run reports it."""
         if not self.closed:
+            data = self._w.take()
             try:
-                self._f.write(self._w.take())
+                self._f.write(data)
                 self._f.flush()
+                self._size += len(data)
             except OSError as exc:
                 self.error, self.closed = exc, True
                 with contextlib.suppress(OSError):
                     self._f.close()
-        return self.path.stat().st_size
+        return self._size
 
     def close(self) -> None:
         if not self.closed:

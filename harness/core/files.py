@@ -23,6 +23,7 @@ _HINTS = {
     errno.EPERM: "permission denied: give --out a directory you can write to",
     errno.ENOTDIR: "a file stands where a directory is expected: give --out a directory",
     errno.EEXIST: "a file stands where a directory is expected: give --out a directory",
+    errno.ENOENT: "the run directory was removed while the run went on",
 }
 
 

@@ -124,6 +124,7 @@ class Launcher:
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         faults: list[dict[str, Any]] = []
         status, message = RunStatus.OK, ""
+        lost: list[RecordingError] = []
         wall0 = self.clock.now_ns()
         t_ns = 0
         # harness sitl sends to its ground station port whoever else does (a batch run: one of its own then)
@@ -204,6 +205,8 @@ class Launcher:
                 world.interrupted()
             except SimulationError as exc:
                 status, message = RunStatus.FAILED, str(exc)
+                if isinstance(exc, RecordingError):
+                    lost.append(exc)
             except Exception as exc:  # a bug must still stop every process and write the summary
                 log.exception("the run failed")
                 status, message = RunStatus.FAILED, f"internal error: {exc!r}"
@@ -214,11 +217,11 @@ class Launcher:
                 world.close()
             # a mission the channel saw only disconnect (os._exit, kill -9): its process says how it ended
             settled = settle(channel.mission_exits, sup.procs, self._mission_process, wait_s=2.0)
-        lost = _unique(world.errors + self._log_errors())
-        if lost and not (status == RunStatus.FAILED and message == str(lost[0])):
+        lost = _unique(lost + world.errors + self._log_errors())  # a recording that could not be completed
+        if lost:
             status, message = RunStatus.FAILED, str(lost[0])
-        if len(lost) > 1:
-            message += "; also " + ", ".join(str(e.path) for e in lost[1:])
+            if len(lost) > 1:
+                message += "; also " + ", ".join(str(e.path) for e in lost[1:])
         wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns if phys is not None else 0
         exits = {e.vehicle: e for e in channel.mission_exits}
@@ -240,11 +243,15 @@ class Launcher:
         faults = [f.__dict__ for f in channel.faults if f.peer not in settled]
         if any(s.crashed for s in summaries) and status == RunStatus.OK:
             status, message = RunStatus.FAILED, "a vehicle crashed"
-        result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
+        incomplete = [str(e.path) for e in lost]
+        result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message, incomplete)
         try:
             write_summary(plan.out, result, self._summary_extra())
         except RecordingError as exc:  # the summary still says "running": read back, the run reads as killed
-            result.status, result.message = RunStatus.FAILED, f"{message}; {exc}" if message else str(exc)
+            result.status = RunStatus.FAILED
+            if str(exc.path) not in incomplete:
+                result.message = f"{message}; {exc}" if message else str(exc)
+                incomplete.append(str(exc.path))
         return result
 
     def _flush_recordings(self, world: WorldTee) -> None:

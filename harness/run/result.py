@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +51,8 @@ class RunResult:
     vehicles: list[VehicleSummary]
     faults: list[dict[str, Any]]
     message: str = ""
+    incomplete: list[str] = field(default_factory=list)
+    """The run's files that could not be completed (a full disk): ``incomplete_files`` in ``summary.json``."""
 
     @property
     def real_time_factor(self) -> float:
@@ -69,6 +71,7 @@ class RunResult:
             "real_time_factor": self.real_time_factor,
             "vehicles": [v.__dict__ | {"final_position_ned_m": list(v.final_position_ned_m)} for v in self.vehicles],
             "faults": self.faults,
+            "incomplete_files": self.incomplete,
         }
 
 

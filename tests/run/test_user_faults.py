@@ -144,6 +144,7 @@ def test_a_disk_that_fills_up_fails_the_run_naming_the_file_and_the_summary_says
     summary = json.loads((copy / "summary.json").read_text())
     assert summary["status"] == "failed" and summary["finished"] is True
     assert summary["message"] == line
+    assert f"{run}/world.mcap" in summary["incomplete_files"]
     assert 0 < summary["sim_time_s"] < 60, "stopped when the disk filled, not at the end of the missions"
     assert out.startswith("failed: ")
     # world.mcap holds what was written before the disk filled, and opens
