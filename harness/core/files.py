@@ -55,6 +55,20 @@ class RecordingError(SimulationError):
         return cls(path, why, _HINTS[errno.ENOSPC] if full else "check the file system it is on")
 
 
+def first_per_file(errors: list[RecordingError]) -> list[RecordingError]:
+    """The first failure of each file, in the order they were found."""
+    seen: dict[Path, RecordingError] = {}
+    for e in errors:
+        seen.setdefault(e.path, e)
+    return list(seen.values())
+
+
+def lost_message(lost: list[RecordingError]) -> str:
+    """The run's message for the recordings it could not complete: the first in full, the others by name."""
+    more = "; also " + ", ".join(str(e.path) for e in lost[1:]) if len(lost) > 1 else ""
+    return str(lost[0]) + more
+
+
 FULL_BELOW_BYTES = 1 << 20
 """Less free space than this where a writer stopped: the file system is (as good as) full."""
 

@@ -13,6 +13,9 @@ import subprocess
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+from harness.run.swarm import SWARM_VEHICLE
+from harness.scenario.plan import LaunchPlan
+
 DISCONNECTED = ("dropped: disconnected", "dropped: connection broke")
 """How the channel records a mission whose connection closed without a goodbye."""
 
@@ -25,6 +28,17 @@ def status_text(code: int) -> str:
         except ValueError:
             return f"killed by signal {-code}"
     return f"exited with {code}"
+
+
+def mission_process(plan: LaunchPlan) -> Callable[[int], str | None]:
+    """The name a run gives the process (in ``Children``) of a vehicle's mission, or of the swarm mission."""
+
+    def name(vehicle: int) -> str | None:
+        if vehicle == SWARM_VEHICLE:
+            return "swarm-mission" if plan.swarm_mission is not None else None
+        return f"mission-{vehicle}" if 0 <= vehicle < plan.vehicles else None
+
+    return name
 
 
 def settle(

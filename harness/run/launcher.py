@@ -33,13 +33,13 @@ from harness.channel import Channel, ChannelConfig
 from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError, stop_reason
-from harness.core.files import RecordingError, writable_dir
+from harness.core.files import RecordingError, first_per_file, lost_message, writable_dir
 from harness.record.sample import VehicleSample, WorldEvent
 from harness.record.sink import WorldSink, WorldTee, open_world
 from harness.record.status import Checkpoint
 from harness.run import swarm, tree
 from harness.run.children import Children
-from harness.run.exits import settle
+from harness.run.exits import mission_process, settle
 from harness.run.ledger import Ledger, Row
 from harness.run.link import NativeLink
 from harness.run.pacing import Pacer
@@ -216,12 +216,10 @@ class Launcher:
                     close_local()
                 world.close()
             # a mission the channel saw only disconnect (os._exit, kill -9): its process says how it ended
-            settled = settle(channel.mission_exits, sup.procs, self._mission_process, wait_s=2.0)
-        lost = _unique(lost + world.errors + self._log_errors())  # a recording that could not be completed
+            settled = settle(channel.mission_exits, sup.procs, mission_process(plan), wait_s=2.0)
+        lost = first_per_file(lost + world.errors + self._log_errors())  # recordings that could not be completed
         if lost:
-            status, message = RunStatus.FAILED, str(lost[0])
-            if len(lost) > 1:
-                message += "; also " + ", ".join(str(e.path) for e in lost[1:])
+            status, message = RunStatus.FAILED, lost_message(lost)
         wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns if phys is not None else 0
         exits = {e.vehicle: e for e in channel.mission_exits}
@@ -243,15 +241,8 @@ class Launcher:
         faults = [f.__dict__ for f in channel.faults if f.peer not in settled]
         if any(s.crashed for s in summaries) and status == RunStatus.OK:
             status, message = RunStatus.FAILED, "a vehicle crashed"
-        incomplete = [str(e.path) for e in lost]
-        result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message, incomplete)
-        try:
-            write_summary(plan.out, result, self._summary_extra())
-        except RecordingError as exc:  # the summary still says "running": read back, the run reads as killed
-            result.status = RunStatus.FAILED
-            if str(exc.path) not in incomplete:
-                result.message = f"{message}; {exc}" if message else str(exc)
-                incomplete.append(str(exc.path))
+        result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message, [str(e.path) for e in lost])
+        write_summary(plan.out, result, self._summary_extra())
         return result
 
     def _flush_recordings(self, world: WorldTee) -> None:
@@ -432,12 +423,6 @@ class Launcher:
         in_process = self.plan.autopilots == AutopilotPlacement.IN_PROCESS
         return tree.worker_groups(self.plan.vehicles, self.plan.workers, tree.ROOT_OVERHEAD if in_process else 0.0)
 
-    def _mission_process(self, vehicle: int) -> str | None:
-        """The name of the process (in ``Children``) of ``vehicle``'s mission, or of the swarm mission."""
-        if vehicle == swarm.SWARM_VEHICLE:
-            return "swarm-mission" if self.plan.swarm_mission is not None else None
-        return f"mission-{vehicle}" if 0 <= vehicle < self.plan.vehicles else None
-
     def _tcp_port(self, vehicle: int) -> int:
         return self.tcp_port_base + self.plan.tcp_port_step * vehicle
 
@@ -585,14 +570,6 @@ def _root_address(plan: LaunchPlan) -> str:
     if sys.platform == "linux":
         return f"unix://@{name}"
     return f"unix://{Path(tempfile.gettempdir()) / f'{name}.sock'}"
-
-
-def _unique(errors: list[RecordingError]) -> list[RecordingError]:
-    """The first failure of each file, in the order they were found."""
-    seen: dict[Path, RecordingError] = {}
-    for e in errors:
-        seen.setdefault(e.path, e)
-    return list(seen.values())
 
 
 def _all_joined(subs: list[tuple[str, str]], expected: int, sup: Children) -> bool:

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from harness.core.files import RecordingError
 from harness.record.status import KILLED, RUNNING, write_final_json
 
 
@@ -77,5 +78,12 @@ class RunResult:
 
 def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
     """The final ``summary.json`` (atomically; it replaces the "running" checkpoints; in place when the disk is
-    full). Raises :class:`~harness.core.files.RecordingError` when it cannot be written at all."""
-    write_final_json(out / "summary.json", result.to_json() | extra | {"finished": True})
+    full). When it cannot be written at all, ``result`` says so (the file still says "running": read back, the
+    run reads as killed)."""
+    try:
+        write_final_json(out / "summary.json", result.to_json() | extra | {"finished": True})
+    except RecordingError as exc:
+        result.status = RunStatus.FAILED
+        if str(exc.path) not in result.incomplete:
+            result.message = f"{result.message}; {exc}" if result.message else str(exc)
+            result.incomplete.append(str(exc.path))
