@@ -265,3 +265,24 @@ def test_after_a_stall_the_run_goes_on_at_its_speed(tmp_path: Path) -> None:
     # x2 for 4 s plus at most 0.5 s of lag made up at the full speed (x2: 1 s of sim): 9 s; catching up the
     # original schedule would be 8 s more
     assert 2.0 < sim_after[-1] <= 9.5, sim_after[-1]  # (it does go on: x0.5 at least, on a loaded machine)
+
+
+def test_a_channel_address_in_use_is_one_line(tmp_path: Path) -> None:
+    """`harness channel --listen` and `harness run --accept` on a port another program holds (loopback only)."""
+    import socket
+
+    mission = script(tmp_path, "m.py", SLEEP)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        address = f"tcp://127.0.0.1:{taken.getsockname()[1]}"
+        expected = f"harness: {address}: cannot listen there (Address already in use): another program may hold it"
+        for args in (
+            ["channel", "--listen", address],
+            ["run", "--mission", str(mission), "--accept", address, "--out", str(tmp_path / "r"), "--", "1"],
+        ):
+            proc = harness(*args)
+            _, stderr = proc.communicate(timeout=60)
+            assert proc.returncode == 2, stderr
+            assert one_line(stderr) == f"{expected}; choose another address"
+    assert not (tmp_path / "r" / "summary.json").exists(), "the run did not start"
