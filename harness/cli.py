@@ -40,7 +40,7 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
     if not channel:
         raise ScenarioError("harness mission: no channel given (use --channel ADDRESS or set HARNESS_CHANNEL)")
     vehicle = a.vehicle if a.vehicle is not None else int(os.environ.get("HARNESS_VEHICLE", "0"))
-    script = script_file(Path(a.script), "harness mission: script")
+    script = script_file(Path(a.script), "script")
     name = a.name or f"mission:{script.name}:{vehicle}"
     hooks = MissionHooks(
         report=lambda line: print(f"harness mission: {line}", file=sys.stderr), end_process=_end_mission
