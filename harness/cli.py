@@ -24,6 +24,7 @@ from harness.cli_run import (
     tree_options,
 )
 from harness.core import lifeline
+from harness.core.endpoints import GCS_PORT
 from harness.core.errors import HarnessError, ScenarioError
 from harness.core.files import script_file
 
@@ -327,7 +328,8 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     a.mission, a.duration, a.plot = [], None, False
     terminate_as_interrupt()
     # hand-run MAVSDK scripts listen on 14540 + i (udpin://0.0.0.0:14540 reaches vehicle 0)
-    plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540)
+    # ... and a ground station finds them on 14550 (QGroundControl's, PX4 SITL's): a destination, listened on or not
+    plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540, gcs_port=GCS_PORT)
     natives: list[NativeViewer] = []
     if a.view:
         plan, natives = _live_view(a, plan)

@@ -34,7 +34,7 @@ from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import script_file
 from harness.run import tree
 from harness.run.children import Children
-from harness.run.ports import GCS_PORT, PX4_API_BASE, allocate
+from harness.run.ports import PX4_API_BASE, allocate
 from harness.run.swarm import mission_argv
 from harness.scenario.plan import MissionPlan
 
@@ -110,7 +110,7 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
     channel = _connect(plan, clock)
     message = ""
     last = plan.indices[-1]
-    with allocate(last + 1, PX4_API_BASE, GCS_PORT) as ports, Children(plan.out, clock=clock) as sup:
+    with allocate(last + 1, PX4_API_BASE) as ports, Children(plan.out, clock=clock) as sup:
         try:
             env = tree.secret_env(
                 dict(os.environ, HARNESS_CHANNEL=channel.address, HARNESS_RUN_DIR=str(plan.out)), plan.secret

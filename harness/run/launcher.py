@@ -77,7 +77,7 @@ class Launcher:
         self._attached: list[Any] = []
         """Their MAVLink sides (with their tlog and ULog writers)."""
         self._checkpoint: Checkpoint | None = None
-        self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port
+        self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port or 0
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
         self._tcp_sim_clients = plan.api_remote_base == 0
         """A batch run (nothing sent unasked to hand-run tools): the ArduPilot vehicles' TCP clients are its
@@ -127,8 +127,7 @@ class Launcher:
         lost: list[RecordingError] = []
         wall0 = self.clock.now_ns()
         t_ns = 0
-        # harness sitl sends to its ground station port whoever else does (a batch run: one of its own then)
-        ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port, gcs_always=not self._tcp_sim_clients)
+        ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         close_local: Callable[[], None] | None = None
@@ -160,11 +159,8 @@ class Launcher:
                         f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
                         f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
                     )
-                    if ports.shared:
-                        plan.progress(
-                            f"MAVLink: another harness run also sends to udp port {self.gcs_port}: a ground station "
-                            "there sees both runs' vehicles"
-                        )
+                    if plan.gcs_port and self.gcs_port != plan.gcs_port:
+                        plan.progress(f"MAVLink: udp port {plan.gcs_port} is another harness run's ground station port")
                     ardupilot = [i for i in range(plan.vehicles) if plan.firmware_of(i) is Firmware.ARDUPILOT]
                     if ardupilot:
                         step = plan.tcp_port_step
@@ -236,7 +232,7 @@ class Launcher:
                         f"the mission of vehicle {s.id} was still running when the run ended at "
                         f"{t_ns / NS_PER_S:.1f} s of sim time"
                         if e is None
-                        else f"the mission of vehicle {s.id} ended: {e.reason}"
+                        else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
         faults = [f.__dict__ for f in channel.faults if f.peer not in settled]
         if any(s.crashed for s in summaries) and status == RunStatus.OK:

@@ -5,11 +5,11 @@ the mission connects *out* to it, as a script does to PX4 SITL's 14580), and one
 send to. PX4 SITL's ports (14580+i, and 14550 for the ground station) are used when they are free;
 otherwise a free block is chosen.
 
-The GCS port is a destination, as PX4 SITL's and MAVProxy's outputs are: the vehicles send to 14550 whether
-or not a ground station listens there, and one that listens before the run starts (QGroundControl opened
-first) hears them. It is *not* free when another harness run on the machine holds it: then a batch run
-sends to a port of its own block (printed at the start, ``gcs_port`` in ``summary.json``), so that a ground
-station never sees two runs' vehicles under the same system ids; ``harness sitl`` sends to 14550 all the same.
+The GCS port is a destination, as PX4 SITL's and MAVProxy's outputs are: ``harness sitl``'s vehicles send
+to 14550 whether or not a ground station listens there, and one that listens before the run starts
+(QGroundControl opened first) hears them. Only another harness run holding it moves a run to a port of its
+own. A batch run sends to a port of its own block unless told one (``[mavlink] gcs_port``): every run's
+vehicle 0 is system 1, and a ground station on 14550 could command every batch run on the machine.
 
 A block belongs to a run from allocation to the end of the run: every port of it is locked with an
 advisory ``flock`` on a file per port (``<tmp>/uav-harness-ports-<uid>/<port>.lock``), held by an open
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from harness.core.endpoints import GCS_PORT, PX4_API_BASE
+from harness.core.endpoints import PX4_API_BASE
 from harness.core.errors import SimulationError
 
 
@@ -42,8 +42,6 @@ class PortBlock:
     gcs: int
     vehicles: int = 0
     _locks: list[IO[bytes]] = field(default_factory=list, repr=False)
-    shared: bool = False
-    """``gcs`` is held by another harness run, and this one sends there too (``harness sitl``)."""
 
     @property
     def ports(self) -> list[int]:
@@ -138,19 +136,15 @@ def _free_block(size: int, rng: random.Random) -> tuple[int, list[IO[bytes]]]:
 
 
 def allocate(
-    vehicles: int,
-    api_base: int = PX4_API_BASE,
-    gcs: int = GCS_PORT,
-    rng: random.Random | None = None,
-    gcs_always: bool = False,
+    vehicles: int, api_base: int = PX4_API_BASE, gcs: int | None = None, rng: random.Random | None = None
 ) -> PortBlock:
     """The standard ports when free, else a free block below the kernel's ephemeral port range; locked for
     this process until :meth:`PortBlock.release` or its end.
 
     The vehicles' own ports (``api_base + i``) must be free to bind. The ground station's port ``gcs`` is a
     destination: a ground station listening there (QGroundControl opened first) is what it is for, so only
-    another harness run holding it counts. Then a batch run sends to a port of its own instead, and
-    ``gcs_always`` (``harness sitl``) sends to ``gcs`` all the same (:attr:`PortBlock.shared` says so)."""
+    another harness run holding it moves this run to a port of its own. ``gcs = None``: a port of the run's
+    own from the start (a batch run); 0: none."""
     rng = rng or random.Random()
     standard = [api_base + i for i in range(vehicles)]
     spare: int | None = None
@@ -159,13 +153,11 @@ def allocate(
     if locks is None:
         base, locks = _free_block(vehicles + 1, rng)
         spare = base + vehicles  # locked and bindable: the ground station port of this block
-    if not gcs:
+    if gcs == 0:
         return PortBlock(base, 0, vehicles, locks)
-    held = _lock(gcs)
-    if held is not None:
+    held = _lock(gcs) if gcs is not None else None
+    if gcs is not None and held is not None:
         return PortBlock(base, gcs, vehicles, [*locks, held])
-    if gcs_always:
-        return PortBlock(base, gcs, vehicles, locks, shared=True)
     if spare is None:
         spare, more = _free_block(1, rng)
         locks += more

@@ -275,7 +275,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         params=tuple(params),
         firmware=firmware,
         api_port_base=ctx.integer(mav.get("api_port_base", 14580), "mavlink.api_port_base", minimum=1),
-        gcs_port=ctx.integer(mav.get("gcs_port", 14550), "mavlink.gcs_port", minimum=0),
+        gcs_port=ctx.integer(mav["gcs_port"], "mavlink.gcs_port", minimum=0) if "gcs_port" in mav else None,
         signing_key_file=ctx.file_path(mav["signing_key_file"], "mavlink.signing_key_file")
         if "signing_key_file" in mav
         else None,

@@ -155,7 +155,9 @@ def test_a_disk_that_fills_up_fails_the_run_naming_the_file_and_the_summary_says
 @needs_root
 def test_a_ground_station_listening_first_hears_every_vehicle(tmp_path: Path) -> None:
     """QGroundControl opened before the simulator: it has bound 14550 when `harness sitl` starts. The vehicles
-    send there all the same (a network namespace of its own: the machine's 14550 is not touched)."""
+    send there all the same (a network namespace of its own: the machine's 14550 is not touched). A batch run
+    sends to a port of its own: nothing outside it hears or commands its vehicles."""
+    mission = script(tmp_path, "m.py", SLEEP)
     gcs = textwrap.dedent(
         f"""
         import os, signal, socket, subprocess, sys, time
@@ -178,8 +180,23 @@ def test_a_ground_station_listening_first_hears_every_vehicle(tmp_path: Path) ->
             heard |= {{m.get_srcSystem() for m in parser.parse_buffer(data) or [] if m.get_type() == "HEARTBEAT"}}
         sitl.send_signal(signal.SIGINT)
         out, err = sitl.communicate(timeout=60)
+        # a batch run meanwhile: its vehicles send to a port of their own, nothing comes to 14550
+        s.setblocking(False)
+        while True:
+            try:
+                s.recv(65536)
+            except BlockingIOError:
+                break
+        batch = subprocess.run([sys.executable, "-m", "harness.cli", "run", "--mission", {str(mission)!r}, "--out",
+                                {str(tmp_path / "batch")!r}, "--no-progress", "--", "2"], capture_output=True, text=True)
+        stray = 0
+        while True:
+            try:
+                stray += len(s.recv(65536))
+            except BlockingIOError:
+                break
         print(sorted(heard))
-        print(sitl.returncode)
+        print(sitl.returncode, batch.returncode, stray)
         print(out + err)
         """
     )
@@ -188,10 +205,12 @@ def test_a_ground_station_listening_first_hears_every_vehicle(tmp_path: Path) ->
         ["unshare", "-n", sys.executable, "-c", gcs], env=env, capture_output=True, text=True, timeout=240
     )
     assert proc.returncode == 0, proc.stderr
-    heard, code, output = proc.stdout.split("\n", 2)
+    heard, codes, output = proc.stdout.split("\n", 2)
     assert heard == "[1, 2]", proc.stdout
-    assert code == "0"
+    assert codes == "0 0 0", proc.stdout  # sitl stopped by Ctrl-C, the batch run ok, 0 bytes to 14550 from it
     assert "MAVLink: ground station on udp port 14550;" in output
+    gcs_port = json.loads((tmp_path / "batch" / "summary.json").read_text())["gcs_port"]
+    assert gcs_port not in (0, 14550)
 
 
 def test_mission_exits_are_recorded_as_they_were(tmp_path: Path) -> None:
@@ -213,10 +232,10 @@ def test_mission_exits_are_recorded_as_they_were(tmp_path: Path) -> None:
     )
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 1
-    assert one_line(err) == "the mission of vehicle 1 ended: killed by SIGKILL"
+    assert one_line(err) == "the mission of vehicle 1 exited with -9 (killed by SIGKILL)"
     assert "vehicle 0: mission exit 0," in out and "vehicle 1: mission exit -9 (killed by SIGKILL)," in out
     summary = json.loads((tmp_path / "b" / "summary.json").read_text())
-    assert summary["status"] == "failed" and summary["message"] == "the mission of vehicle 1 ended: killed by SIGKILL"
+    assert summary["status"] == "failed" and summary["message"] == "the mission of vehicle 1 exited with -9 (killed by SIGKILL)"
     assert [v["mission_exit_code"] for v in summary["vehicles"]] == [0, -9]
     assert summary["vehicles"][1]["mission_exit_reason"] == "killed by SIGKILL"
 
