@@ -235,7 +235,10 @@ def test_mission_exits_are_recorded_as_they_were(tmp_path: Path) -> None:
     assert one_line(err) == "the mission of vehicle 1 exited with -9 (killed by SIGKILL)"
     assert "vehicle 0: mission exit 0," in out and "vehicle 1: mission exit -9 (killed by SIGKILL)," in out
     summary = json.loads((tmp_path / "b" / "summary.json").read_text())
-    assert summary["status"] == "failed" and summary["message"] == "the mission of vehicle 1 exited with -9 (killed by SIGKILL)"
+    assert (
+        summary["status"] == "failed"
+        and summary["message"] == "the mission of vehicle 1 exited with -9 (killed by SIGKILL)"
+    )
     assert [v["mission_exit_code"] for v in summary["vehicles"]] == [0, -9]
     assert summary["vehicles"][1]["mission_exit_reason"] == "killed by SIGKILL"
 
@@ -258,7 +261,10 @@ def test_sigterm_is_reported_as_sigterm(tmp_path: Path) -> None:
     proc.send_signal(signal.SIGTERM)
     stdout, stderr = proc.communicate(timeout=30)
     assert proc.returncode == 130
-    assert one_line(stderr) == "stopped by SIGTERM"
+    # the one line; and, when Rerun was still being imported (a loaded machine), the note that there is no 3D view
+    *before, last = stderr.strip().splitlines()
+    assert last == "stopped by SIGTERM" and "Traceback" not in stderr
+    assert all("stopped while world.rrd was being opened" in line for line in before), stderr
     assert stdout.startswith("interrupted: ")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and summary["message"] == "stopped by SIGTERM"
