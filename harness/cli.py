@@ -24,7 +24,9 @@ from harness.cli_run import (
     tree_options,
 )
 from harness.core import lifeline
+from harness.core.endpoints import GCS_PORT
 from harness.core.errors import HarnessError, ScenarioError
+from harness.core.files import script_file
 
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
@@ -39,9 +41,7 @@ def _cmd_mission(a: argparse.Namespace, script_args: list[str]) -> int:
     if not channel:
         raise ScenarioError("harness mission: no channel given (use --channel ADDRESS or set HARNESS_CHANNEL)")
     vehicle = a.vehicle if a.vehicle is not None else int(os.environ.get("HARNESS_VEHICLE", "0"))
-    script = Path(a.script)
-    if not script.is_file():
-        raise ScenarioError(f"harness mission: script {script} does not exist")
+    script = script_file(Path(a.script), "script")
     name = a.name or f"mission:{script.name}:{vehicle}"
     hooks = MissionHooks(
         report=lambda line: print(f"harness mission: {line}", file=sys.stderr), end_process=_end_mission
@@ -95,8 +95,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
 
     missions = [MissionPlan(Path(m), tuple(script_args or ())) for m in a.mission]
     for m in missions:
-        if not m.script.is_file():
-            raise ScenarioError(f"--mission {m.script}: the file does not exist")
+        script_file(m.script, "--mission")
     vehicles = a.vehicles if a.vehicles is not None else max(1, len(missions))
     swarm_mission = _swarm_mission(a, script_args)
     if swarm_mission is not None and a.vehicles is None and not missions:
@@ -153,8 +152,7 @@ def _swarm_mission(a: argparse.Namespace, script_args: list[str] | None) -> Miss
     path = getattr(a, "swarm_mission", None)
     if path is None:
         return None
-    if not Path(path).is_file():
-        raise ScenarioError(f"--swarm-mission {path}: the file does not exist")
+    script_file(Path(path), "--swarm-mission")
     return MissionPlan(Path(path), tuple(script_args or ()))
 
 
@@ -243,7 +241,8 @@ def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewe
         print(result.message, file=sys.stderr)
     for v in result.vehicles:
         print(
-            f"  vehicle {v.id}: mission exit {v.mission_exit_code}, max altitude {v.max_altitude_m:.1f} m, "
+            f"  vehicle {v.id}: mission exit {_exit_text(v.mission_exit_code, v.mission_exit_reason)}, "
+            f"max altitude {v.max_altitude_m:.1f} m, "
             f"final NED {tuple(round(x, 1) for x in v.final_position_ned_m)}, landed {v.landed}"
         )
     if a.plot:
@@ -251,11 +250,12 @@ def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewe
 
         make_plots(plan.out)
         print(f"plots: {plan.out / 'index.html'}")
-    if (plan.out / "world.rrd").is_file():
-        print(f"3D view: harness view {plan.out}")
-    else:
-        from harness.record.sink import INSTALL_HINT
+    from harness.record.sink import INSTALL_HINT, rerun_available
 
+    rrd = plan.out / "world.rrd"
+    if rrd.is_file() and str(rrd) not in result.incomplete:
+        print(f"3D view: harness view {plan.out}")
+    elif not rerun_available():
         print(f"3D view: not recorded ({INSTALL_HINT})")
     for viewer in natives:
         print("the viewer stays open until you close it (Ctrl-C closes it too)", flush=True)
@@ -264,6 +264,14 @@ def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewe
         except KeyboardInterrupt:
             pass
     return result.exit_code
+
+
+def _exit_text(code: int | None, reason: str) -> str:
+    """``0``, ``1``, ``-9 (killed by SIGKILL)``, ``-1 (dropped: stalled ...)``: the code, and how it came to be
+    when the code alone does not say."""
+    if code is None:
+        return "none (still running at the end)"
+    return f"{code} ({reason})" if code < 0 and reason else str(code)
 
 
 def _cmd_view(a: argparse.Namespace, rest: list[str]) -> int:
@@ -320,7 +328,8 @@ def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
     a.mission, a.duration, a.plot = [], None, False
     terminate_as_interrupt()
     # hand-run MAVSDK scripts listen on 14540 + i (udpin://0.0.0.0:14540 reaches vehicle 0)
-    plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540)
+    # ... and a ground station finds them on 14550 (QGroundControl's, PX4 SITL's): a destination, listened on or not
+    plan = dataclasses.replace(_plan_from_args(a), api_remote_base=14540, gcs_port=GCS_PORT)
     natives: list[NativeViewer] = []
     if a.view:
         plan, natives = _live_view(a, plan)
@@ -509,6 +518,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if a.verbose > 1 else logging.INFO if a.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    if a.verbose == 0:
+        from harness.record.sink import QUIET_RERUN_LOG
+
+        os.environ.setdefault("RUST_LOG", QUIET_RERUN_LOG)
     try:
         return int(a.func(a, unknown + script_args))
     except HarnessError as exc:

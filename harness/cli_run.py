@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from harness.core.errors import ScenarioError
+from harness.core.errors import ScenarioError, StopSignal
 
 if TYPE_CHECKING:
     from harness.sweep.runner import SweepProgress
@@ -94,10 +94,10 @@ def cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
 
 def terminate_as_interrupt() -> None:
     """SIGINT and SIGTERM (Ctrl-C, a CI timeout, a supervisor) end a run cleanly: children stopped, summary
-    written — also when the shell started us in the background with SIGINT ignored."""
+    written (saying which signal) — also when the shell started us in the background with SIGINT ignored."""
 
     def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
+        raise StopSignal(signum)
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)

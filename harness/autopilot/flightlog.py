@@ -10,6 +10,7 @@ PlotJuggler and pyulog read it. The MAVLink log protocol (``harness.autopilot.ma
 
 from __future__ import annotations
 
+import contextlib
 import math
 from pathlib import Path
 from typing import BinaryIO
@@ -114,6 +115,9 @@ class FlightLog:
         self._next = {FAST_NS: 0, MEDIUM_NS: 0, SLOW_NS: 0}
         self._status: tuple[object, ...] = ()
         self.closed = False
+        self.error: OSError | None = None
+        self._size = 0
+        """Bytes written (the file's size: it was created empty)."""
 
     def text(self, t_ns: int, severity: Severity, text: str) -> None:
         if not self.closed:
@@ -164,14 +168,23 @@ class FlightLog:
             self.flush()
 
     def flush(self) -> int:
-        """Write what is buffered; the file's size, which ends on a message boundary."""
+        """Write what is buffered; the file's size, which ends on a message boundary. A write that fails (a
+        full disk) closes the log and is kept in :attr:`error`: the vehicle flies on, the run reports it."""
         if not self.closed:
-            self._f.write(self._w.take())
-            self._f.flush()
-        return self.path.stat().st_size
+            data = self._w.take()
+            try:
+                self._f.write(data)
+                self._f.flush()
+                self._size += len(data)
+            except OSError as exc:
+                self.error, self.closed = exc, True
+                with contextlib.suppress(OSError):
+                    self._f.close()
+        return self._size
 
     def close(self) -> None:
         if not self.closed:
             self.flush()
-            self.closed = True
-            self._f.close()
+            if not self.closed:
+                self.closed = True
+                self._f.close()

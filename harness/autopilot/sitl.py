@@ -15,6 +15,7 @@ microseconds (the format of QGroundControl and MAVProxy telemetry logs).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import logging
@@ -47,30 +48,44 @@ _STAMP = struct.Struct(">Q")
 
 
 class TlogWriter:
-    """Appends MAVLink frames to a ``.tlog``; flushed every ``flush_every`` frames and on close."""
+    """Appends MAVLink frames to a ``.tlog``; flushed every ``flush_every`` frames and on close. A write that
+    fails (a full disk) closes it and is kept in :attr:`error`: the MAVLink side goes on, the run reports it."""
 
     def __init__(self, path: Path, flush_every: int = 50, clock: Clock = WALL) -> None:
+        self.path = path
         self._f: BinaryIO = path.open("ab")
         self._clock = clock
         self._n = 0
         self._flush_every = flush_every
         self._lock = threading.Lock()
         self.closed = False
+        self.error: OSError | None = None
 
     def write(self, frame: bytes) -> None:
         with self._lock:
             if self.closed:
                 return
-            self._f.write(_STAMP.pack(self._clock.unix_ns() // 1000) + frame)
-            self._n += 1
-            if self._n % self._flush_every == 0:
-                self._f.flush()
+            try:
+                self._f.write(_STAMP.pack(self._clock.unix_ns() // 1000) + frame)
+                self._n += 1
+                if self._n % self._flush_every == 0:
+                    self._f.flush()
+            except OSError as exc:
+                self._failed(exc)
+
+    def _failed(self, exc: OSError) -> None:
+        self.error, self.closed = exc, True
+        with contextlib.suppress(OSError):
+            self._f.close()  # flushes once more, and fails again: closed all the same
 
     def close(self) -> None:
         with self._lock:
             if not self.closed:
                 self.closed = True
-                self._f.close()
+                try:
+                    self._f.close()
+                except OSError as exc:
+                    self._failed(exc)
 
 
 class _Attached:
@@ -85,6 +100,10 @@ class _Attached:
             self.tlog.close()
         if self.ulog is not None:
             self.ulog.close()
+
+    def write_errors(self) -> list[tuple[Path, OSError]]:
+        """The vehicle's logs that could not be written (a full disk), with why."""
+        return [(w.path, w.error) for w in (self.tlog, self.ulog) if w is not None and w.error is not None]
 
 
 def attach_mavlink(
@@ -234,7 +253,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     finally:
         close_mavlink(hub, attached)
-    return 0
+    failed = [(path, why) for handle in attached for path, why in handle.write_errors()]
+    for path, why in failed:
+        log.error("could not write %s: %s; the recording is incomplete", path, why.strerror)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

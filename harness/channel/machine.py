@@ -360,7 +360,7 @@ class TickMachine(Membership):
         self.fault(peer, why, p.ErrorCode.PEER_LOST)
 
     def fault(self, peer: PeerState, why: str, code: p.ErrorCode) -> None:
-        """Drop ``peer`` (type 0, optionally type 1) or fail the run (everything else: reported by its runner)."""
+        """Drop ``peer`` (type 0, optionally type 1) or fail the run (everything else); the runner reports both."""
         if peer.closed:
             return
         if peer.upstream:
@@ -371,7 +371,7 @@ class TickMachine(Membership):
         )
         message = f"{peer.label}{peer.vehicle_note} {why}"
         self.faults.append(Fault(peer.name, kind.name, peer.vehicle, why, self.tick, fatal))
-        log.log(logging.INFO if fatal else logging.ERROR, "channel %s: %s", self.name, message)
+        log.log(logging.INFO if fatal or kind == p.PeerKind.TYPE0 else logging.ERROR, f"channel {self.name}: {message}")
         self.close(peer, p.encode(p.Error(code, message, fatal=True)))
         if kind == p.PeerKind.TYPE0:
             self.mission_exits.append(MissionExit(peer.name, peer.vehicle, -1, f"dropped: {why}"))

@@ -1,5 +1,7 @@
 """The project's error hierarchy: one root, bad setup versus failures at run time."""
 
+import signal
+
 
 class HarnessError(Exception):
     """Root of every error the harness raises on purpose."""
@@ -11,3 +13,23 @@ class ScenarioError(HarnessError):
 
 class SimulationError(HarnessError):
     """Something failed while the simulation ran: a peer died, stalled or broke the protocol."""
+
+
+class StopSignal(KeyboardInterrupt):
+    """A signal asked the process to stop (Ctrl-C's SIGINT, SIGTERM from a supervisor or a CI time-out), raised
+    where it arrived, as Ctrl-C's KeyboardInterrupt is; ``signum`` says which, so the run can say so."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(signum)
+
+
+def stop_reason(exc: KeyboardInterrupt) -> str:
+    """``stopped by Ctrl-C (SIGINT)``, ``stopped by SIGTERM``."""
+    signum = exc.signum if isinstance(exc, StopSignal) else signal.SIGINT
+    if signum == signal.SIGINT:
+        return "stopped by Ctrl-C (SIGINT)"
+    try:
+        return f"stopped by {signal.Signals(signum).name}"
+    except ValueError:
+        return f"stopped by signal {signum}"

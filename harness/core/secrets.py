@@ -14,6 +14,7 @@ import string
 from pathlib import Path
 
 from harness.core.errors import ScenarioError
+from harness.core.files import read_text
 
 SECRET_ENV = ("HARNESS_SECRET", "HARNESS_CHANNEL_SECRET")
 _HEX = frozenset(string.hexdigits)
@@ -43,10 +44,7 @@ def channel_secret(given: str | None, secret_file: str | None) -> bytes | None:
     the environment; None when there is none."""
     if secret_file is not None:
         path = Path(secret_file)
-        try:
-            text = path.read_text().strip()
-        except OSError as exc:
-            raise ScenarioError(f"--secret-file: {path} cannot be read ({exc.strerror})") from None
+        text = read_text(path, "--secret-file").strip()
         if not text:
             raise ScenarioError(f"--secret-file: {path} is empty")
         return text.encode()

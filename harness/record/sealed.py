@@ -48,20 +48,37 @@ class SealedFile:
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         self._pos = 0
         self._sealed = True
+        self._data_end = 0
         self.closed = False
 
-    def _pwrite(self, data: bytes) -> None:
+    def _pwrite(self, data: bytes, at: int) -> None:
         view = memoryview(data)
-        at = self._pos
         while view:
             n = os.pwrite(self._fd, view, at)
             view, at = view[n:], at + n
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         chunk = bytes(data)
-        self._pwrite(chunk + SEAL if self._sealed else chunk)
+        try:
+            self._pwrite(chunk + SEAL if self._sealed else chunk, self._pos)
+        except OSError:
+            self._restore()
+            raise
         self._pos += len(chunk)
         return len(chunk)
+
+    def _restore(self) -> None:
+        """After a write that failed (a full disk: part of it may have landed): the file as it was before, a
+        valid MCAP file of everything written so far. Cutting the part off frees the room the seal needs."""
+        if self._sealed:
+            self._seal_at(self._pos)
+
+    def _seal_at(self, pos: int) -> None:
+        try:
+            os.ftruncate(self._fd, pos)
+            self._pwrite(SEAL, pos)
+        except OSError:
+            pass  # the file system refuses even that: the file is cut short, readers see the chunks before
 
     def tell(self) -> int:
         return self._pos
@@ -76,7 +93,17 @@ class SealedFile:
         """From now on writes carry no seal (the Writer is about to write the real end of the file)."""
         if self._sealed:
             self._sealed = False
+            self._data_end = self._pos
             os.ftruncate(self._fd, self._pos)
+
+    def abandon(self) -> None:
+        """Stop writing after a failed write: the file stays as :meth:`_restore` left it, or, when the end of the
+        file was being written, its data and a seal (valid either way)."""
+        if not self.closed:
+            self.closed = True
+            if not self._sealed:  # the end of the file was being written: back to the data and a seal
+                self._seal_at(self._data_end)
+            os.close(self._fd)
 
     def close(self) -> None:
         if not self.closed:

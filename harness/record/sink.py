@@ -1,8 +1,9 @@
 """One data path for the run's ground truth: the launcher writes to a ``WorldSink``; ``open_world`` gives it
 ``world.mcap`` and, when Rerun is installed, ``world.rrd`` (the 3D view) fed by the same calls.
 
-The view is an extra: if Rerun is missing, ``world.rrd`` is simply not written; if it fails during a run,
-it is switched off with a warning and the run (and ``world.mcap``) goes on.
+The view is an extra: if Rerun is missing, ``world.rrd`` is simply not written. A recording that cannot be
+completed — ``world.mcap`` or ``world.rrd`` on a full disk, a view that fails — is in ``WorldTee.errors``
+(``world.mcap``'s failure also raised, so that the run stops at once): the run fails and names the file.
 """
 
 from __future__ import annotations
@@ -10,11 +11,13 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
+import sys
 import threading
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NoReturn, Protocol
 
+from harness.core.files import RecordingError
 from harness.record.sample import VehicleSample
 from harness.record.world import WorldRecorder
 
@@ -23,6 +26,10 @@ if TYPE_CHECKING:
     from harness.record.rrd import RrdRecorder
 
 log = logging.getLogger(__name__)
+
+QUIET_RERUN_LOG = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off"
+"""``RUST_LOG`` for a run (unless set): Rerun's own error lines about ``world.rrd`` are left out, because the
+run reports a recording it could not complete itself, in one line that names the file."""
 
 INSTALL_HINT = "install the view extra: pip install 'uav-harness[view]' (python3 dev.py demo installs it)"
 
@@ -94,6 +101,15 @@ class WorldTee:
         self.view = view
         self._opening = opening
         self._backlog: list[Callable[[RrdRecorder], None]] = []
+        self.errors: list[RecordingError] = []
+        """The recordings that could not be completed (a full disk, a view that failed), first first."""
+
+    def _mcap_failed(self, exc: OSError) -> NoReturn:
+        """``world.mcap`` could not be written: it keeps what it holds (a valid file), the run must stop."""
+        self.mcap.abandon()
+        err = RecordingError.of(self.mcap.path, exc)
+        self.errors.append(err)
+        raise err
 
     def _guard(self, call: Callable[[RrdRecorder], None]) -> None:
         if self._opening is not None:
@@ -120,34 +136,56 @@ class WorldTee:
             self._fail()
 
     def _fail(self) -> None:
-        log.warning("the 3D view failed and is switched off for the rest of the run", exc_info=True)
         view, self.view = self.view, None
-        if view is not None:
-            try:
-                view.close()
-            except Exception:
-                pass
+        if view is None:
+            return
+        exc = sys.exc_info()[1]
+        log.debug("the 3D view failed", exc_info=True)
+        if isinstance(exc, OSError):
+            self.errors.append(RecordingError.of(view.path, exc))
+        else:
+            self.errors.append(RecordingError.writer_stopped(view.path, f"the 3D view failed: {exc}"))
+        try:
+            view.close()
+        except Exception:
+            pass
 
     def vehicle(self, s: VehicleSample) -> None:
-        self.mcap.vehicle(s)
+        try:
+            self.mcap.vehicle(s)
+        except OSError as exc:
+            self._mcap_failed(exc)
         if self.view is not None or self._opening is not None:
             self._guard(lambda v: v.vehicle(s))
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
-        self.mcap.tick(t_ns, tick, wall_s, tick_wall_us)
+        try:
+            self.mcap.tick(t_ns, tick, wall_s, tick_wall_us)
+        except OSError as exc:
+            self._mcap_failed(exc)
         if self.view is not None or self._opening is not None:
             self._guard(lambda v: v.tick(t_ns, tick, wall_s, tick_wall_us))
 
     def event(self, t_ns: int, kind: str, detail: dict[str, Any]) -> None:
-        self.mcap.event(t_ns, kind, detail)
+        try:
+            self.mcap.event(t_ns, kind, detail)
+        except OSError as exc:
+            self._mcap_failed(exc)
         self._guard(lambda v: v.event(t_ns, kind, detail))
 
     def attach_autopilots(self, aps: Mapping[int, AutopilotApi]) -> None:
         self._guard(lambda v: v.attach_autopilots(aps))
 
     def flush(self) -> None:
-        self.mcap.flush()
+        self.flush_mcap()
         self._guard(lambda v: v.flush())
+
+    def flush_mcap(self) -> None:
+        """The chunk in progress of ``world.mcap`` to disk; :class:`RecordingError` when it cannot be written."""
+        try:
+            self.mcap.flush()
+        except OSError as exc:
+            self._mcap_failed(exc)
 
     def interrupted(self) -> None:
         """The run was stopped (Ctrl-C, SIGTERM). A view still being opened is given up, not waited for:
@@ -162,13 +200,16 @@ class WorldTee:
             self._backlog = []
 
     def close(self) -> None:
+        """Finish both files; what could not be completed is in :attr:`errors` (never raised: the run is ending)."""
         try:
             self.mcap.close()
-        finally:
-            if self._opening is not None:
-                self._opened(self._opening.wait())
-            self._guard(lambda v: v.close())
-            self.view = None
+        except OSError as exc:
+            self.mcap.abandon()
+            self.errors.append(RecordingError.of(self.mcap.path, exc))
+        if self._opening is not None:
+            self._opened(self._opening.wait())
+        self._guard(lambda v: v.close())
+        self.view = None
 
 
 def open_world(

@@ -10,6 +10,7 @@ with the last sim time it recorded. ``harness plot``, the pytest plugin and the 
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from collections.abc import Callable
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.core.files import RecordingError
 
 RUNNING = "running"
 KILLED = "killed"
@@ -24,10 +26,34 @@ CHECKPOINT_EVERY_S = 1.0
 
 
 def write_json(path: Path, obj: dict[str, Any]) -> None:
-    """Atomically: a reader sees the old file or the new one, never half of one."""
+    """Atomically: a reader sees the old file or the new one, never half of one. Raises OSError (and leaves no
+    ``.tmp`` behind) when it cannot."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2))
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(json.dumps(obj, indent=2))
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_final_json(path: Path, obj: dict[str, Any]) -> None:
+    """The last version of ``path``: atomically when there is room; on a full file system, over the old file in
+    place and compact (it needs no more space than the indented one it replaces: a run that filled its disk
+    still says so in its summary). Raises :class:`RecordingError` when neither works."""
+    try:
+        write_json(path, obj)
+        return
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT) or not path.is_file():
+            raise RecordingError.of(path, exc) from None
+        first = exc
+    try:
+        with path.open("r+b") as f:
+            f.write(json.dumps(obj, separators=(",", ":")).encode() + b"\n")
+            f.truncate()
+    except OSError:
+        raise RecordingError.of(path, first) from None
 
 
 def _proc_stat(pid: int) -> list[str] | None:
@@ -94,9 +120,13 @@ class Checkpoint:
         self._identity = {"pid": os.getpid(), "pid_start": _start_time(os.getpid())}
 
     def write(self) -> None:
+        """Raises :class:`RecordingError` when ``summary.json`` cannot be written (``flush`` raises its own)."""
         self._last_ns = self.clock.now_ns()
         self._flush()
-        write_json(self.path, self._snapshot() | {"status": RUNNING, "finished": False} | self._identity)
+        try:
+            write_json(self.path, self._snapshot() | {"status": RUNNING, "finished": False} | self._identity)
+        except OSError as exc:
+            raise RecordingError.of(self.path, exc) from None
 
     def maybe(self) -> None:
         if self.clock.now_ns() - self._last_ns >= self._every_ns:

@@ -36,6 +36,20 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+def _check_free(port: int, option: str) -> None:
+    """The web viewer's port can be listened on (on every address, as its server does)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("0.0.0.0", port))
+            s.listen()
+        except OSError as exc:
+            raise ScenarioError(
+                f"{option} {port}: the port cannot be listened on ({exc.strerror}): choose another, or leave "
+                f"{option} out for a free one"
+            ) from None
+
+
 def require_rerun(what: str) -> None:
     if not rerun_available():
         raise ScenarioError(f"{what} needs Rerun, which is not installed: {INSTALL_HINT}")
@@ -66,8 +80,11 @@ class WebViewer:
     """Rerun's web viewer over HTTP on ``port`` (all interfaces, for remote machines); lives as long as this
     process (Rerun's server has no stop)."""
 
-    def __init__(self, port: int | None = None) -> None:
+    def __init__(self, port: int | None = None, option: str = "--view-port") -> None:
+        """``port``: the one the user asked for (``option``), tried now: in use, it is one line before the run."""
         require_rerun("the web viewer")
+        if port:
+            _check_free(port, option)
         self.port = port or free_port()
         self._started = False
 
@@ -128,6 +145,8 @@ class NativeViewer:
 def serve_file_web(rrd: Path, web_port: int | None = None) -> tuple[subprocess.Popen[bytes], str]:
     """``rerun --serve-web`` on a recording, as a supervised child; returns it and the URL to open."""
     require_rerun("the web viewer")
+    if web_port:
+        _check_free(web_port, "--port")
     port = web_port or free_port()
     grpc_port = free_port()
     proc = subprocess.Popen(

@@ -331,9 +331,19 @@ class WorldRecorder:
         if self.closed:
             return
         self.closed = True
-        self._file.unseal()
-        self._w.finish()
+        try:
+            self._w.flush()  # the last chunk while the file is sealed: a failure leaves the file valid
+            self._file.unseal()
+            self._w.finish()
+        except OSError:
+            self._file.abandon()
+            raise
         self._file.close()
+
+    def abandon(self) -> None:
+        """After a write failed (a full disk): no more writes; the file holds every chunk written before."""
+        self.closed = True
+        self._file.abandon()
 
 
 def read_topics(path: Path) -> dict[str, list[Any]]:

@@ -30,10 +30,11 @@ from pathlib import Path
 from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
 from harness.core.clock import NS_PER_S, WALL, Clock
-from harness.core.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError, stop_reason
+from harness.core.files import script_file
 from harness.run import tree
 from harness.run.children import Children
-from harness.run.ports import GCS_PORT, PX4_API_BASE, allocate
+from harness.run.ports import PX4_API_BASE, allocate
 from harness.run.swarm import mission_argv
 from harness.scenario.plan import MissionPlan
 
@@ -78,8 +79,7 @@ def plan_from_args(a: argparse.Namespace, rest: list[str], progress: Callable[[s
     """The plan of ``harness join`` from its command line (``rest``: the missions' arguments)."""
     missions = [MissionPlan(Path(m), tuple(rest)) for m in a.mission]
     for m in missions:
-        if not m.script.is_file():
-            raise ScenarioError(f"--mission {m.script}: the file does not exist")
+        script_file(m.script, "--mission")
     if len(missions) == 1:
         missions = missions * a.vehicles
     return JoinPlan(
@@ -110,7 +110,7 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
     channel = _connect(plan, clock)
     message = ""
     last = plan.indices[-1]
-    with allocate(last + 1, PX4_API_BASE, GCS_PORT) as ports, Children(plan.out, clock=clock) as sup:
+    with allocate(last + 1, PX4_API_BASE) as ports, Children(plan.out, clock=clock) as sup:
         try:
             env = tree.secret_env(
                 dict(os.environ, HARNESS_CHANNEL=channel.address, HARNESS_RUN_DIR=str(plan.out)), plan.secret
@@ -126,8 +126,8 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
             if plan.progress is not None:
                 plan.progress(f"joined {plan.parent} as {channel.config.name}: vehicles {plan.first_vehicle}-{last}")
             message = _supervise(channel, sup)
-        except KeyboardInterrupt:
-            message = "stopped by Ctrl-C"
+        except KeyboardInterrupt as exc:
+            message = stop_reason(exc)
         except SimulationError as exc:
             message = str(exc)
         finally:

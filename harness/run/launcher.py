@@ -32,14 +32,17 @@ from harness.autopilot.firmware import Firmware
 from harness.channel import Channel, ChannelConfig
 from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
-from harness.core.errors import ScenarioError, SimulationError
+from harness.core.errors import ScenarioError, SimulationError, stop_reason
+from harness.core.files import RecordingError, first_per_file, lost_message, writable_dir
 from harness.record.sample import VehicleSample, WorldEvent
-from harness.record.sink import WorldSink, open_world
+from harness.record.sink import WorldSink, WorldTee, open_world
 from harness.record.status import Checkpoint
 from harness.run import swarm, tree
 from harness.run.children import Children
+from harness.run.exits import mission_process, settle
 from harness.run.ledger import Ledger, Row
 from harness.run.link import NativeLink
+from harness.run.pacing import Pacer
 from harness.run.ports import allocate
 from harness.run.result import RunResult, RunStatus, VehicleSummary, write_summary
 from harness.scenario.limits import check_plan
@@ -64,15 +67,17 @@ class Launcher:
         check_plan(plan)  # every setting within its bounds before anything starts (limits.py)
         self.plan = plan
         self.clock = clock
-        plan.out.mkdir(parents=True, exist_ok=True)
+        writable_dir(plan.out)  # a read-only or full file system, a file in the way: one line, nothing started
         self.epoch_ns = clock.unix_ns() // NS_PER_S * NS_PER_S
         self.paused = threading.Event()
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
         self._aps: dict[int, Any] = {}
         """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
+        self._attached: list[Any] = []
+        """Their MAVLink sides (with their tlog and ULog writers)."""
         self._checkpoint: Checkpoint | None = None
-        self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port
+        self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port or 0
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
         self._tcp_sim_clients = plan.api_remote_base == 0
         """A batch run (nothing sent unasked to hand-run tools): the ArduPilot vehicles' TCP clients are its
@@ -97,7 +102,10 @@ class Launcher:
         # each autopilot host steps its vehicles' physics too (configured by this file); this process the rest
         in_hosts = {v for group in self._autopilot_groups() for v in group}
         if in_hosts:
-            (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
+            try:
+                (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
+            except OSError as exc:
+                raise RecordingError.of(plan.out / PHYSICS_FILE, exc) from None
         phys: Any = None
         """This process's share of the physics: built while the children start (they import meanwhile)."""
         channel = Channel(
@@ -116,6 +124,7 @@ class Launcher:
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         faults: list[dict[str, Any]] = []
         status, message = RunStatus.OK, ""
+        lost: list[RecordingError] = []
         wall0 = self.clock.now_ns()
         t_ns = 0
         ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
@@ -136,7 +145,7 @@ class Launcher:
                 ).to_json()
                 | extra()
             ),
-            world.mcap.flush,
+            lambda: self._flush_recordings(world),
             clock=clock,
         )
         self._checkpoint.write()
@@ -150,6 +159,8 @@ class Launcher:
                         f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
                         f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
                     )
+                    if plan.gcs_port and self.gcs_port != plan.gcs_port:
+                        plan.progress(f"MAVLink: udp port {plan.gcs_port} is another harness run's ground station port")
                     ardupilot = [i for i in range(plan.vehicles) if plan.firmware_of(i) is Firmware.ARDUPILOT]
                     if ardupilot:
                         step = plan.tcp_port_step
@@ -185,11 +196,13 @@ class Launcher:
                     status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
                 finally:
                     gc.unfreeze()
-            except KeyboardInterrupt:
-                status, message = RunStatus.INTERRUPTED, "stopped by Ctrl-C"
+            except KeyboardInterrupt as exc:
+                status, message = RunStatus.INTERRUPTED, stop_reason(exc)
                 world.interrupted()
             except SimulationError as exc:
                 status, message = RunStatus.FAILED, str(exc)
+                if isinstance(exc, RecordingError):
+                    lost.append(exc)
             except Exception as exc:  # a bug must still stop every process and write the summary
                 log.exception("the run failed")
                 status, message = RunStatus.FAILED, f"internal error: {exc!r}"
@@ -198,6 +211,11 @@ class Launcher:
                 if close_local is not None:  # first: the MAVLink thread would compete with the recorders' closing
                     close_local()
                 world.close()
+            # a mission the channel saw only disconnect (os._exit, kill -9): its process says how it ended
+            settled = settle(channel.mission_exits, sup.procs, mission_process(plan), wait_s=2.0)
+        lost = first_per_file(lost + world.errors + self._log_errors())  # recordings that could not be completed
+        if lost:
+            status, message = RunStatus.FAILED, lost_message(lost)
         wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
         t_ns = phys.t_ns if phys is not None else 0
         exits = {e.vehicle: e for e in channel.mission_exits}
@@ -207,6 +225,7 @@ class Launcher:
             if s.mission is not None:
                 e = swarm_end if s.id < plan.vehicles and not _own_mission(plan, s.id) else exits.get(s.id)
                 s.mission_exit_code = e.exit_code if e is not None else None
+                s.mission_exit_reason = e.reason if e is not None else ""
                 if status == RunStatus.OK and (e is None or e.exit_code != 0):
                     status = RunStatus.FAILED
                     message = message or (
@@ -215,12 +234,24 @@ class Launcher:
                         if e is None
                         else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
-        faults = [f.__dict__ for f in channel.faults]
+        faults = [f.__dict__ for f in channel.faults if f.peer not in settled]
         if any(s.crashed for s in summaries) and status == RunStatus.OK:
             status, message = RunStatus.FAILED, "a vehicle crashed"
-        result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message)
+        result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message, [str(e.path) for e in lost])
         write_summary(plan.out, result, self._summary_extra())
         return result
+
+    def _flush_recordings(self, world: WorldTee) -> None:
+        """Every second: ``world.mcap``'s chunk in progress to disk, and a log that could not be written stops
+        the run (:class:`RecordingError`, naming the file)."""
+        world.flush_mcap()
+        lost = self._log_errors()
+        if lost:
+            raise lost[0]
+
+    def _log_errors(self) -> list[RecordingError]:
+        """The vehicles' logs in this process (tlogs, ULogs) that could not be written."""
+        return [RecordingError.of(path, exc) for handle in self._attached for path, exc in handle.write_errors()]
 
     def _summary_extra(self) -> dict[str, Any]:
         plan = self.plan
@@ -286,6 +317,7 @@ class Launcher:
         hub.start()  # once every server is in: an add to a running hub waits for its thread
 
         self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
+        self._attached = attached
         return lambda: close_mavlink(hub, attached)
 
     def _start_children(self, sup: Any, address: str, pump: Callable[[], None] = lambda: None) -> None:
@@ -402,6 +434,7 @@ class Launcher:
         link = NativeLink(channel, self._aps)
         paused_once = False
         wall0 = self.clock.now_ns()
+        pacer = Pacer(plan.speed, wall0) if plan.speed is not None else None
         last_progress = wall0
         motors: list[tuple[float, ...]] = [(0.0, 0.0, 0.0, 0.0)] * n
         own = phys.owned
@@ -427,11 +460,12 @@ class Launcher:
                 while self.paused.is_set():
                     self.clock.sleep_ns(20_000_000)
                 stalled = self.clock.now_ns() - stopped
-                wall0 += stalled  # pacing resumes from here, it does not rush to catch up
+                wall0 += stalled
+                if pacer is not None:
+                    pacer.shift(stalled)  # pacing resumes from here, it does not rush to catch up
                 world.event(t_ns, WorldEvent.RESUMED, {"paused_wall_s": stalled / NS_PER_S})
-            if plan.speed is not None:
-                lag = wall0 + int(t_ns / plan.speed) - self.clock.now_ns()
-                self.clock.sleep_ns(lag)
+            if pacer is not None:  # a rate, not a schedule: after a stall the run goes on at the speed asked
+                self.clock.sleep_ns(pacer.wait_ns(t_ns, self.clock.now_ns()))
             tick_start = self.clock.now_ns()
             phase = tick % plan.phase_every == 0
             etas = link.exchange(t_ns, tick, frames, elsewhere if phase else None)

@@ -5,12 +5,18 @@ the mission connects *out* to it, as a script does to PX4 SITL's 14580), and one
 send to. PX4 SITL's ports (14580+i, and 14550 for the ground station) are used when they are free;
 otherwise a free block is chosen.
 
+The GCS port is a destination, as PX4 SITL's and MAVProxy's outputs are: ``harness sitl``'s vehicles send
+to 14550 whether or not a ground station listens there, and one that listens before the run starts
+(QGroundControl opened first) hears them. Only another harness run holding it moves a run to a port of its
+own. A batch run sends to a port of its own block unless told one (``[mavlink] gcs_port``): every run's
+vehicle 0 is system 1, and a ground station on 14550 could command every batch run on the machine.
+
 A block belongs to a run from allocation to the end of the run: every port of it is locked with an
 advisory ``flock`` on a file per port (``<tmp>/uav-harness-ports-<uid>/<port>.lock``), held by an open
 file of the run's process. Two ``harness run`` started in the same instant therefore never get the same
 port, even for the ports that no process of the run binds (the GCS port belongs to whichever ground
-station binds it), and a run that dies releases its locks with its process: nothing goes stale. Ports
-another program has bound are skipped too (a probe bind with SO_REUSEADDR off). Fallback blocks lie below
+station binds it), and a run that dies releases its locks with its process: nothing goes stale. Vehicle
+ports another program has bound are skipped too (a probe bind with SO_REUSEADDR off). Fallback blocks lie below
 the kernel's ephemeral port range, so that no socket bound to port 0 can take one of them.
 """
 
@@ -26,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from harness.core.endpoints import GCS_PORT, PX4_API_BASE
+from harness.core.endpoints import PX4_API_BASE
 from harness.core.errors import SimulationError
 
 
@@ -118,21 +124,41 @@ def _free_span(size: int) -> tuple[int, int]:
     return 10000, top
 
 
-def allocate(
-    vehicles: int, api_base: int = PX4_API_BASE, gcs: int = GCS_PORT, rng: random.Random | None = None
-) -> PortBlock:
-    """The standard ports when free, else a free block below the kernel's ephemeral port range; locked for
-    this process until :meth:`PortBlock.release` or its end."""
-    standard = [api_base + i for i in range(vehicles)] + ([gcs] if gcs else [])
-    if len(set(standard)) == len(standard):
-        locks = _take(standard)
-        if locks is not None:
-            return PortBlock(api_base, gcs, vehicles, locks)
-    rng = rng or random.Random()
-    span_lo, span_hi = _free_span(vehicles + 1)
+def _free_block(size: int, rng: random.Random) -> tuple[int, list[IO[bytes]]]:
+    """``size`` consecutive free ports below the kernel's ephemeral port range, locked."""
+    span_lo, span_hi = _free_span(size)
     for _ in range(200):
         base = rng.randrange(span_lo, span_hi)
-        locks = _take([base + i for i in range(vehicles + 1)])
+        locks = _take([base + i for i in range(size)])
         if locks is not None:
-            return PortBlock(base, base + vehicles, vehicles, locks)
-    raise SimulationError(f"no block of {vehicles + 1} free UDP ports on 127.0.0.1 after 200 tries")
+            return base, locks
+    raise SimulationError(f"no block of {size} free UDP ports on 127.0.0.1 after 200 tries")
+
+
+def allocate(
+    vehicles: int, api_base: int = PX4_API_BASE, gcs: int | None = None, rng: random.Random | None = None
+) -> PortBlock:
+    """The standard ports when free, else a free block below the kernel's ephemeral port range; locked for
+    this process until :meth:`PortBlock.release` or its end.
+
+    The vehicles' own ports (``api_base + i``) must be free to bind. The ground station's port ``gcs`` is a
+    destination: a ground station listening there (QGroundControl opened first) is what it is for, so only
+    another harness run holding it moves this run to a port of its own. ``gcs = None``: a port of the run's
+    own from the start (a batch run); 0: none."""
+    rng = rng or random.Random()
+    standard = [api_base + i for i in range(vehicles)]
+    spare: int | None = None
+    locks = _take(standard) if gcs not in standard else None
+    base = api_base
+    if locks is None:
+        base, locks = _free_block(vehicles + 1, rng)
+        spare = base + vehicles  # locked and bindable: the ground station port of this block
+    if gcs == 0:
+        return PortBlock(base, 0, vehicles, locks)
+    held = _lock(gcs) if gcs is not None else None
+    if gcs is not None and held is not None:
+        return PortBlock(base, gcs, vehicles, [*locks, held])
+    if spare is None:
+        spare, more = _free_block(1, rng)
+        locks += more
+    return PortBlock(base, spare, vehicles, locks)

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harness.record.status import KILLED, RUNNING, write_json
+from harness.core.files import RecordingError
+from harness.record.status import KILLED, RUNNING, write_final_json
 
 
 class RunStatus(enum.StrEnum):
@@ -32,6 +33,10 @@ class VehicleSummary:
     id: int
     mission: str | None
     mission_exit_code: int | None = None
+    """As the mission ended: its exit code, or minus the signal that killed it (``-9``); -1 when the channel
+    dropped it while it ran on; None while it still ran when the run ended."""
+    mission_exit_reason: str = ""
+    """How it ended, in words (``script exited with 0``, ``killed by SIGKILL``, ``dropped: stalled ...``)."""
     max_altitude_m: float = 0.0
     final_position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     landed: bool = True
@@ -47,6 +52,8 @@ class RunResult:
     vehicles: list[VehicleSummary]
     faults: list[dict[str, Any]]
     message: str = ""
+    incomplete: list[str] = field(default_factory=list)
+    """The run's files that could not be completed (a full disk): ``incomplete_files`` in ``summary.json``."""
 
     @property
     def real_time_factor(self) -> float:
@@ -65,9 +72,18 @@ class RunResult:
             "real_time_factor": self.real_time_factor,
             "vehicles": [v.__dict__ | {"final_position_ned_m": list(v.final_position_ned_m)} for v in self.vehicles],
             "faults": self.faults,
+            "incomplete_files": self.incomplete,
         }
 
 
 def write_summary(out: Path, result: RunResult, extra: dict[str, Any]) -> None:
-    """The final ``summary.json`` (atomically; it replaces the "running" checkpoints)."""
-    write_json(out / "summary.json", result.to_json() | extra | {"finished": True})
+    """The final ``summary.json`` (atomically; it replaces the "running" checkpoints; in place when the disk is
+    full). When it cannot be written at all, ``result`` says so (the file still says "running": read back, the
+    run reads as killed)."""
+    try:
+        write_final_json(out / "summary.json", result.to_json() | extra | {"finished": True})
+    except RecordingError as exc:
+        result.status = RunStatus.FAILED
+        if str(exc.path) not in result.incomplete:
+            result.message = f"{result.message}; {exc}" if result.message else str(exc)
+            result.incomplete.append(str(exc.path))

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.core.errors import ScenarioError, SimulationError
+from harness.core.files import read_text
 
 SECRET_ENV = "HARNESS_CHANNEL_SECRET"
 
@@ -25,10 +26,7 @@ SECRET_ENV = "HARNESS_CHANNEL_SECRET"
 def read_secret(secret_file: str | None) -> bytes | None:
     """The channel secret: the first line of ``secret_file``, else ``$HARNESS_CHANNEL_SECRET``, else None."""
     if secret_file:
-        try:
-            text = Path(secret_file).read_text().strip()
-        except OSError as exc:
-            raise ScenarioError(f"--secret-file {secret_file}: cannot read it ({exc.strerror})") from None
+        text = read_text(Path(secret_file), "--secret-file").strip()
         if not text:
             raise ScenarioError(f"--secret-file {secret_file}: the file is empty")
         return text.splitlines()[0].encode()

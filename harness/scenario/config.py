@@ -20,6 +20,7 @@ from typing import Any
 
 from harness.autopilot.firmware import Firmware
 from harness.core.errors import ScenarioError
+from harness.core.files import read_text, script_file
 from harness.fdm.sensors import GPS_PROFILES, GpsProfile, gps_profile_names
 from harness.net.model import NetworkKind
 from harness.scenario.limits import check_plan, vehicle_count_error
@@ -105,9 +106,12 @@ class _Ctx:
         if not isinstance(value, str) or not value:
             raise self.fail(field, f"expected the path of a script, got {value!r}")
         path = (self.path.parent / value).resolve()
-        if not path.is_file():
+        if not path.exists():
             raise self.fail(field, f"file {value} does not exist (looked in {path.parent})")
-        return path
+        try:
+            return script_file(path, "the script")
+        except ScenarioError as exc:
+            raise self.fail(field, str(exc)) from None
 
     def file_path(self, value: Any, field: str) -> Path:
         """A path given in the file, relative to the file's directory."""
@@ -193,10 +197,9 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
     before validation (``--set``), ``overrides`` (from the command line) win over the file."""
     path = Path(path)
     ctx = _Ctx(path)
+    text = read_text(path, "scenario file")
     try:
-        raw = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: the scenario file does not exist") from None
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
     if sets:
@@ -272,7 +275,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         params=tuple(params),
         firmware=firmware,
         api_port_base=ctx.integer(mav.get("api_port_base", 14580), "mavlink.api_port_base", minimum=1),
-        gcs_port=ctx.integer(mav.get("gcs_port", 14550), "mavlink.gcs_port", minimum=0),
+        gcs_port=ctx.integer(mav["gcs_port"], "mavlink.gcs_port", minimum=0) if "gcs_port" in mav else None,
         signing_key_file=ctx.file_path(mav["signing_key_file"], "mavlink.signing_key_file")
         if "signing_key_file" in mav
         else None,

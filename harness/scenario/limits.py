@@ -151,7 +151,8 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
         c.number(plan.wind_ned_m_s[i], axis, -100.0, 100.0)
     c.number(plan.turbulence, "turbulence", 0.0, 30.0)
     c.port_block("api_port_base", plan.api_port_base, n)
-    c.port_block("gcs_port", plan.gcs_port, 1, zero_ok=True)
+    if plan.gcs_port is not None:
+        c.port_block("gcs_port", plan.gcs_port, 1, zero_ok=True)
     c.port_block("api_remote_base", plan.api_remote_base, n, zero_ok=True)
     if plan.tcp_port_base is not None:
         if not isinstance(plan.tcp_port_step, int) or plan.tcp_port_step < 1:

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware, firmware_of
-from harness.core.endpoints import GCS_PORT, PX4_API_BASE
+from harness.core.endpoints import PX4_API_BASE
 from harness.core.errors import ScenarioError
 from harness.fdm.sensors import GpsProfile
 from harness.net.model import NetworkKind
@@ -76,7 +76,9 @@ class LaunchPlan:
     params: tuple[dict[str, float], ...] = ()
     api_port_base: int = PX4_API_BASE
     """Vehicle ``i`` listens for its mission on UDP ``api_port_base + i`` (PX4 SITL's 14580 + i when free)."""
-    gcs_port: int = GCS_PORT
+    gcs_port: int | None = None
+    """Where the vehicles send to a ground station (a destination: listened on or not). None: a port of the run's
+    own (a batch run: nothing outside the run hears or commands its vehicles); ``harness sitl``: 14550; 0: off."""
     api_remote_base: int = 0
     """Vehicle ``i`` also sends to UDP ``api_remote_base + i`` unasked (``harness sitl``: 14540, where hand-run
     MAVSDK scripts listen); 0 = only to the peers that spoke to it (``harness run``: its own missions)."""

@@ -77,19 +77,28 @@ def _tune(sock: socket.socket) -> None:
 
 
 def listen(addr: Address, backlog: int = 128) -> tuple[socket.socket, Address]:
-    """A listening socket for ``addr``; returns it with the address actually bound (port 0 resolved)."""
-    if addr.scheme == "unix":
-        if not addr.is_abstract and os.path.exists(addr.path):
-            os.unlink(addr.path)
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sock.bind(_unix_name(addr))
+    """A listening socket for ``addr``; returns it with the address actually bound (port 0 resolved). An
+    address in use (or not this machine's) is a :class:`ScenarioError`: one line, before the run starts."""
+    sock: socket.socket | None = None
+    try:
+        if addr.scheme == "unix":
+            if not addr.is_abstract and os.path.exists(addr.path):
+                os.unlink(addr.path)
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.bind(_unix_name(addr))
+            sock.listen(backlog)
+            return sock, addr
+        family = socket.AF_INET6 if ":" in addr.host else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((addr.host, addr.port))
         sock.listen(backlog)
-        return sock, addr
-    family = socket.AF_INET6 if ":" in addr.host else socket.AF_INET
-    sock = socket.socket(family, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.bind((addr.host, addr.port))
-    sock.listen(backlog)
+    except OSError as exc:
+        if sock is not None:
+            sock.close()
+        raise ScenarioError(
+            f"{addr}: cannot listen there ({exc.strerror}): another program may hold it; choose another address"
+        ) from None
     host, port = sock.getsockname()[:2]
     return sock, Address("tcp", host=host, port=port)
 

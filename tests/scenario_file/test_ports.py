@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import random
 import socket
+import tempfile
+from pathlib import Path
+
+import pytest
 
 from harness.run.ports import allocate, ephemeral_range
 
@@ -28,3 +32,23 @@ def test_standard_ports_when_free_else_a_block_below_the_ephemeral_range() -> No
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind(("127.0.0.1", 24550))
     s.close()
+
+
+def test_gcs_port_a_listener_holds_is_still_the_destination(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A ground station listening on the port does not move the vehicles elsewhere; another run holding it does.
+    ``tests/run/test_user_faults.py``: the same with QGroundControl's 14550 and ``harness sitl``."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # this test's locks only
+    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    listener.bind(("127.0.0.1", 0))
+    gcs = listener.getsockname()[1]
+    try:
+        with allocate(2, api_base=24580, gcs=gcs) as first:
+            assert first.gcs == gcs  # a ground station listening: that is what it is for
+            with allocate(2, api_base=24580, gcs=gcs) as second:  # another run holds it: a port of its own
+                assert second.gcs not in (gcs, 0) and second.gcs not in range(second.api_base, second.api_base + 2)
+        with allocate(2, api_base=24580) as batch:  # a batch run: a port of its own from the start
+            assert batch.gcs not in (gcs, 0, 24580, 24581)
+        with allocate(2, api_base=24580, gcs=0) as off:
+            assert off.gcs == 0
+    finally:
+        listener.close()

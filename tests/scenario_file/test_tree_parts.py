@@ -24,7 +24,7 @@ def test_secret_from_file_then_environment(tmp_path: Path, monkeypatch: pytest.M
     path.write_text("\n")
     with pytest.raises(ScenarioError, match="the file is empty"):
         read_secret(str(path))
-    with pytest.raises(ScenarioError, match="cannot read it"):
+    with pytest.raises(ScenarioError, match="missing: the file does not exist"):
         read_secret(str(tmp_path / "missing"))
     assert secret_env({"A": "1"}, b"s") == {"A": "1", "HARNESS_CHANNEL_SECRET": "s"}
     assert secret_env({"A": "1"}, None) == {"A": "1"}

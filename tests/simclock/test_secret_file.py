@@ -77,5 +77,10 @@ def test_unreadable_or_empty_secret_file_is_one_line(tmp_path: Path) -> None:
     (tmp_path / "empty").write_text("\n")
     with pytest.raises(ScenarioError, match=r"^--secret-file: .*empty is empty$"):
         channel_secret(None, str(tmp_path / "empty"))
-    with pytest.raises(ScenarioError, match=r"^--secret-file: .*nope cannot be read \(No such file or directory\)$"):
+    with pytest.raises(ScenarioError, match=r"^--secret-file .*nope: the file does not exist$"):
         channel_secret(None, str(tmp_path / "nope"))
+    (tmp_path / "latin1").write_bytes(b"s\xe9cret\n")
+    with pytest.raises(ScenarioError, match=r"^--secret-file .*latin1: not UTF-8 text \(byte 0xe9 on line 1\)"):
+        channel_secret(None, str(tmp_path / "latin1"))
+    with pytest.raises(ScenarioError, match=r"^--secret-file .*: this is a directory"):
+        channel_secret(None, str(tmp_path))

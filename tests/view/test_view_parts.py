@@ -129,3 +129,40 @@ def test_a_run_stopped_while_the_view_opens_does_not_wait_for_it(tmp_path: Path)
     while not opening.done() and time.monotonic() < deadline:
         time.sleep(0.01)
     assert closed == [LateView.path] and not LateView.path.exists()
+
+
+def test_a_view_that_cannot_write_its_file_is_a_recording_the_run_could_not_complete(tmp_path: Path) -> None:
+    """Rerun's file sink stops on a full disk and says so only when flushed: the tee keeps that as a
+    recording that could not be completed, naming world.rrd, and world.mcap is finished as usual."""
+    from harness.record.world import WorldRecorder, read_topics
+
+    class FullDiskView:
+        path = tmp_path / "world.rrd"
+
+        def vehicle(self, s: VehicleSample) -> None:
+            pass
+
+        def close(self) -> None:
+            raise RuntimeError("File-writer thread shut down prematurely")
+
+    tee = sink.WorldTee(WorldRecorder(tmp_path / "world.mcap", 0, 1), FullDiskView())  # type: ignore[arg-type]
+    tee.vehicle(SAMPLE)
+    tee.close()
+    (err,) = tee.errors
+    assert err.path == tmp_path / "world.rrd"
+    assert str(err).startswith(
+        f"could not write {tmp_path / 'world.rrd'}: the 3D view failed: File-writer thread shut down prematurely ("
+    )
+    assert read_topics(tmp_path / "world.mcap")["/vehicle/0/pose"]
+
+
+def test_a_web_viewer_port_in_use_is_one_line_before_the_run(tmp_path: Path) -> None:
+    import socket
+
+    pytest.importorskip("rerun")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(cli.ScenarioError, match=rf"^--view-port {port}: the port cannot be listened on \("):
+            viewer.WebViewer(port)
