@@ -13,9 +13,12 @@ fence parameters are combined: ``FENCE_ENABLE`` = 0 turns the core's fence limit
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 from harness.autopilot.api import CommandResult
+from harness.autopilot.mavlink.ardupilot.copter_table import TABLE
+from harness.autopilot.param_table import ParamTable, parse_param_table
 from harness.autopilot.params import ParamDef, Params, ParamType
 
 log = logging.getLogger(__name__)
@@ -129,6 +132,24 @@ def own_defs(sysid: int) -> tuple[ParamDef, ...]:
     return tuple(defs)
 
 
+_INT32 = (-2147483648.0, 2147483647.0)
+
+
+def copter_table() -> ParamTable:
+    """ArduCopter's parameter table (read once per process)."""
+    return parse_param_table(TABLE, "ArduCopter's parameter table")
+
+
+def stored_value(ptype: ParamType, value: float) -> float:
+    """The value ArduCopter keeps for a PARAM_SET of ``value`` (``AP_Param::set_float``): floats as given, integers
+    truncated after adding 0.01 away from zero, within the type's limits (INT32 here: the table has no widths)."""
+    v = float(value)
+    if ptype != ParamType.INT32 or not math.isfinite(v):
+        return v
+    v += 0.01 if v >= 0 else -0.01
+    return float(int(min(max(v, _INT32[0]), _INT32[1])))
+
+
 class CopterParams(Params):
     """ArduCopter-named parameters, kept in step with the core registry ``core``."""
 
@@ -136,15 +157,21 @@ class CopterParams(Params):
         self.core = core
         self._mapped = {m.name: m for m in MAPPED if m.core in core}
         self._by_core = {m.core: m for m in self._mapped.values()}
+        table = copter_table()
         mapped_defs = []
         for m in self._mapped.values():
             d = core.definition(m.core)
             assert d is not None
             lo, hi = d.min * m.scale, d.max * m.scale  # every value the core can show, and ArduCopter's range
-            if m.ap_range is not None:
-                lo, hi = min(lo, m.ap_range[0]), max(hi, m.ap_range[1])
+            ap_range = table.ranges.get(m.name, m.ap_range)  # the table's (ArduCopter 4.2) where it has one
+            if ap_range is not None:
+                lo, hi = min(lo, ap_range[0]), max(hi, ap_range[1])
             mapped_defs.append(ParamDef(m.name, m.type, round(d.default * m.scale, 6), lo, hi, m.unit))
-        super().__init__(tuple(mapped_defs) + own_defs(sysid))
+        special = {d.name: d for d in (*mapped_defs, *own_defs(sysid))}
+        self.special = frozenset(special)
+        """Mapped and own parameters: flown or applied (the rest of the table is stored only)."""
+        self.table = table
+        super().__init__((*(special.pop(d.name, d) for d in table.defs), *special.values()))
         self._syncing = False
         for m in self._mapped.values():  # current core values (overrides included)
             super().set(m.name, self._from_core(m, core[m.core]))
@@ -161,6 +188,12 @@ class CopterParams(Params):
             return self._set_mapped(m, value)
         if name == "SYSID_THISMAV" and name in self and value != self[name]:
             return CommandResult.denied("SYSID_THISMAV is fixed by the run (the vehicle index + 1)")
+        if name not in self.special and not self._syncing:
+            if name in self.table.read_only:
+                return CommandResult.denied(f"Param write denied ({name})")
+            d = self.definition(name)
+            if d is not None:
+                value = stored_value(d.type, value)
         r = super().set(name, value)
         if r.ok and name.startswith("FENCE_"):
             self.apply_fence()
