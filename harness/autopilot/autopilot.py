@@ -116,9 +116,35 @@ class Autopilot:
         self.follow = FollowTarget(self)
         self.flight_log: FlightLog | None = None
         """The vehicle's ULog (``harness.autopilot.flightlog``), when the run writes one."""
+        self._hook_modes()
+
+    def _hook_modes(self) -> None:
         hooks = self.core.nav.mode_hooks
         hooks[FlightMode.POSCTL] = hooks[FlightMode.ALTCTL] = self.manual._setpoint
         hooks[FlightMode.FOLLOW_TARGET] = self.follow.update
+
+    def reboot(self) -> CommandResult:
+        """Restart the flight stack in place, as a SITL reboot does (on the ground, disarmed): a new flight core
+        (estimator, controllers, modes, sticks) on the same parameters, the stored missions and fence kept, home
+        and failsafes forgotten. Sim time goes on; physics never stopped."""
+        with self._lock:
+            old = self.core
+            if old.armed:
+                return CommandResult.failed("Reboot refused: the vehicle is armed")
+            cfg = self.config
+            self.core = FlightCore(self.params, cfg.use_ground_truth, GeoRef(*cfg.origin) if cfg.origin else None)
+            self.core.nav.items = list(old.nav.items)
+            self.core.fence.set_items(old.fence.items)
+            self.core.t_ns = old.t_ns
+            self.home = self.home_ned = None
+            self.failsafe = Failsafe.NONE
+            self.supervisor = Supervisor()
+            self._offboard_kind, self._offboard_sp, self._offboard_att = OffboardKind.NONE, None, None
+            self.manual = ManualControl(self)
+            self.follow = FollowTarget(self)
+            self._hook_modes()
+            self._cache = None
+            return CommandResult.accepted()
 
     # ------------------------------------------------------------------ lockstep
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]:
@@ -407,6 +433,17 @@ class Autopilot:
         vals += [v for v in (sp.yaw_rad, sp.yaw_rate_rad_s) if v is not None]
         if not finite(vals):
             return CommandResult.denied("offboard setpoint with NaN or infinite values")
+        return self._offboard_setpoint(sp)
+
+    def set_offboard_axes(self, sp: OffboardSetpoint) -> CommandResult:
+        """An offboard setpoint whose NaN components leave their axis to the others, as ALTCTL's setpoints do
+        (ArduCopter's attitude targets: a horizontal acceleration and a climb rate). Infinite values are refused."""
+        vals = [v for vec in (sp.position_m, sp.velocity_m_s, sp.accel_m_s2) if vec is not None for v in vec]
+        if any(math.isinf(v) for v in vals) or all(math.isnan(v) for v in vals):
+            return CommandResult.denied("offboard setpoint with infinite values or no axis set")
+        return self._offboard_setpoint(sp)
+
+    def _offboard_setpoint(self, sp: OffboardSetpoint) -> CommandResult:
         with self._lock:
             self._offboard_wall_ns = self.wall.now_ns()
             self._offboard_sp, self._offboard_kind = sp, OffboardKind.SETPOINT

@@ -75,6 +75,14 @@ CORE_DEFAULTS: dict[str, float] = {
     "COM_OBL_RC_ACT": 5,  # then the vehicle stops and holds, as ArduCopter's GUIDED does
     "MPC_LAND_SPEED": 0.6,  # LAND_SPEED 50 cm/s is below the core's floor; the nearest it takes
     "COM_RC_IN_MODE": 4,  # no stick input: ALT_HOLD and POSHOLD hold the position as they did before sticks
+    # RC_CHANNELS_OVERRIDE (``rc.py``) flies on the core's sticks: ArduCopter's dead zones, not the core's; full
+    # stick tilts ANGLE_MAX's default 30 deg; an override that times out (RC_OVERRIDE_TIME, set by the dialect)
+    # leaves SITL's radio at low throttle: the vehicle lands (in GUIDED, AUTO and hold sticks do not count)
+    "MPC_HOLD_DZ": 0.0,
+    "MPC_MAN_TILT_MAX": 30.0,
+    "COM_RC_LOSS_T": 3.0,
+    "NAV_RCL_ACT": 3,
+    "COM_RCL_EXCEPT": 7,
 }
 """Core parameter defaults of an ArduCopter vehicle (ArduCopter's defaults in core units)."""
 
