@@ -79,3 +79,10 @@ def test_a_personalitys_table_is_saved_per_vehicle_and_restored(tmp_path: Path) 
     core2, again = _copter()
     assert persist_params(again, tmp_path, 2, "ardupilot") == []
     assert again["RC_OVERRIDE_TIME"] == 1.5 and again["WPNAV_SPEED"] == 800.0 and core2["MPC_XY_CRUISE"] == 8.0
+
+
+def test_arducopter_3_names_dronekits_examples_use_share_a_core_parameter() -> None:
+    core, ap = _copter()
+    assert ap.set("THR_MID", 400).ok and core["MPC_THR_HOVER"] == 0.4 and ap["MOT_THST_HOVER"] == 0.4
+    assert ap.set("MOT_THST_HOVER", 0.5).ok and ap["THR_MID"] == 500.0
+    assert core.set("MPC_THR_HOVER", 0.45).ok and ap["THR_MID"] == 450.0 and ap["MOT_THST_HOVER"] == 0.45

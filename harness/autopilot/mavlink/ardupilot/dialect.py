@@ -277,22 +277,25 @@ class CopterDialect:
             manual(*self.rc.sticks(st.t_ns, mode in ALT_HOLDING))
 
     def _rc_override(self, m: MAVLinkMessage, origin: Origin) -> None:
-        """RC_CHANNELS_OVERRIDE (``rc.py``): in a pilot mode the sticks fly the vehicle."""
+        """RC_CHANNELS_OVERRIDE (``rc.py``): in a pilot mode the sticks fly the vehicle; a released channel reads
+        the radio again at once (SITL's: throttle low)."""
         st = self.api.state()
         values = [int(getattr(m, f"chan{i}_raw", 0xFFFF if i <= 8 else 0)) for i in range(1, CHANNELS + 1)]
         if not self.rc.override(origin.sysid, values, st.t_ns):
             return
         live = self.rc.any_active(st.t_ns)
-        self._core_rc(live)
         shown = self.modes.shown(st.mode)
         if shown not in STICK_CORE_MODE:
+            self._core_rc(live)
             return
-        if not live:  # every channel released: on the ground, the mode goes back to flying without a pilot
-            if st.mode is STICK_CORE_MODE[shown] and not st.in_air and shown is CopterMode.STABILIZE:
-                self.api.hold()
-            elif st.mode is STICK_CORE_MODE[shown] and not st.in_air:
-                self.api.set_mode(CORE_MODE[shown])
+        if not live and not st.in_air:  # every channel released on the ground: the mode flies without a pilot
+            if st.mode is STICK_CORE_MODE[shown]:
+                r = self.api.hold() if shown is CopterMode.STABILIZE else self.api.set_mode(CORE_MODE[shown])
+                if not r.ok:
+                    log.info("vehicle %d: RC released in %s: %s", self.api.vehicle, shown.name, r.reason)
+            self._core_rc(False)
             return
+        self._core_rc(True)
         self._sticks(st, shown)
         core_mode = STICK_CORE_MODE[shown]
         if st.mode is not core_mode:

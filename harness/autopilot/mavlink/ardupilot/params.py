@@ -58,6 +58,7 @@ MAPPED: tuple[Mapped, ...] = (
     Mapped("MOT_THST_HOVER", "MPC_THR_HOVER", 1.0),
     # ArduCopter 3.x name (DroneKit's vehicle_state.py reads it and writes 10): 0-300 in 0.1 % of throttle
     Mapped("THR_MIN", "MPC_THR_MIN", 1000.0, unit="0.1 %", ap_range=(0.0, 300.0)),
+    Mapped("THR_MID", "MPC_THR_HOVER", 1000.0, unit="0.1 %", ap_range=(300.0, 700.0)),  # 3.x: MOT_THST_HOVER
     Mapped("PSC_POSXY_P", "MPC_XY_P", 1.0),
     Mapped("PSC_POSZ_P", "MPC_Z_P", 1.0),
     Mapped("ATC_ANG_RLL_P", "MC_ROLL_P", 1.0),
@@ -164,7 +165,9 @@ class CopterParams(Params):
     def __init__(self, core: Params, sysid: int) -> None:
         self.core = core
         self._mapped = {m.name: m for m in MAPPED if m.core in core}
-        self._by_core = {m.core: m for m in self._mapped.values()}
+        self._by_core: dict[str, list[Mapped]] = {}
+        for m in self._mapped.values():
+            self._by_core.setdefault(m.core, []).append(m)
         table = copter_table()
         mapped_defs = []
         for m in self._mapped.values():
@@ -221,6 +224,9 @@ class CopterParams(Params):
         self._syncing = True  # the core's change is not shown back: the value stays as the script set it
         try:
             rc = self.core.set(m.core, core_value)
+            for other in self._by_core.get(m.core, ()) if rc.ok else ():  # THR_MID and MOT_THST_HOVER
+                if other is not m:
+                    super().set(other.name, self._from_core(other, core_value))
         finally:
             self._syncing = False
         if not rc.ok:
@@ -229,12 +235,12 @@ class CopterParams(Params):
         return r
 
     def _core_changed(self, core_name: str, value: float) -> None:
-        m = self._by_core.get(core_name)
-        if m is None or self._syncing:
+        if self._syncing:
             return
         self._syncing = True
         try:
-            super().set(m.name, self._from_core(m, value))
+            for m in self._by_core.get(core_name, ()):
+                super().set(m.name, self._from_core(m, value))
         finally:
             self._syncing = False
 
