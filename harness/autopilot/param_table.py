@@ -81,6 +81,8 @@ def parse_param_table(text: str, where: str = "parameter table") -> ParamTable:
         name, kind, default, lo, hi, unit, flags = cols
         ptype = ParamType.INT32 if kind == "i" else ParamType.FLOAT
         d = _number(default, f"{name} default") or 0.0
+        if ptype == ParamType.INT32 and not d.is_integer():
+            raise ScenarioError(f"{where}: integer parameter {name} has the default {default}")
         defs.append(ParamDef(name, ptype, d, -math.inf, math.inf, unit))
         a, b = _number(lo, f"{name} min"), _number(hi, f"{name} max")
         if a is not None and b is not None:

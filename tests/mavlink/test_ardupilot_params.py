@@ -33,6 +33,7 @@ def test_the_table_is_arducopter_4_2_with_more_than_a_thousand_parameters() -> N
     d = {x.name: x for x in t.defs}
     assert d["RC3_MIN"].default == 1100 and d["RC3_TRIM"].default == 1500 and d["RCMAP_THROTTLE"].default == 3
     assert d["FS_THR_ENABLE"].type == ParamType.INT32 and d["WPNAV_SPEED"].type == ParamType.FLOAT
+    assert d["FS_EKF_THRESH"].type == ParamType.FLOAT and d["FS_EKF_THRESH"].default == 0.8  # values 0.6, 0.8, 1
 
 
 def test_the_loader_is_firmware_neutral_and_refuses_a_bad_table(tmp_path: Path) -> None:
@@ -47,6 +48,9 @@ def test_the_loader_is_firmware_neutral_and_refuses_a_bad_table(tmp_path: Path) 
     bad = tmp_path / "bad.tsv"
     bad.write_text("name\ttype\nA\ti\n")
     with pytest.raises(ScenarioError, match="columns"):
+        load_param_table(bad)
+    bad.write_text("name\ttype\tdefault\tmin\tmax\tunit\tflags\nA\ti\t0.5\t\t\t\t-\n")
+    with pytest.raises(ScenarioError, match=r"integer parameter A has the default 0\.5"):
         load_param_table(bad)
 
 
