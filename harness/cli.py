@@ -218,6 +218,10 @@ def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
 
     terminate_as_interrupt()
     plan = _plan_from_args(a, rest)
+    if getattr(a, "stdin", False):
+        if sum(m is not None for m in plan.missions[: plan.vehicles]) + (plan.swarm_mission is not None) != 1:
+            raise ScenarioError("--stdin hands the terminal to one mission: run exactly one")
+        plan = dataclasses.replace(plan, mission_stdin=True)
     natives: list[NativeViewer] = []
     if getattr(a, "view", None):
         plan, natives = _live_view(a, plan)
@@ -424,6 +428,11 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="a headless batch run: physics, autopilots, network and missions")
     r.add_argument("scenario", nargs="?", default=None, help="scenario file (TOML); or use --vehicles/--mission")
     _add_run_options(r)
+    r.add_argument(
+        "--stdin",
+        action="store_true",
+        help="hand this terminal's stdin to the run's one mission and show its output here (prompt-driven scripts)",
+    )
     r.set_defaults(func=_cmd_run)
 
     d = sub.add_parser(

@@ -436,6 +436,17 @@ class Autopilot:
         vals += [v for v in (sp.yaw_rad, sp.yaw_rate_rad_s) if v is not None]
         if not finite(vals):
             return CommandResult.denied("offboard setpoint with NaN or infinite values")
+        return self._offboard_setpoint(sp)
+
+    def set_offboard_axes(self, sp: OffboardSetpoint) -> CommandResult:
+        """An offboard setpoint whose NaN components leave their axis to the others, as ALTCTL's setpoints do
+        (ArduCopter's attitude targets: a horizontal acceleration and a climb rate). Infinite values are refused."""
+        vals = [v for vec in (sp.position_m, sp.velocity_m_s, sp.accel_m_s2) if vec is not None for v in vec]
+        if any(math.isinf(v) for v in vals) or all(math.isnan(v) for v in vals):
+            return CommandResult.denied("offboard setpoint with infinite values or no axis set")
+        return self._offboard_setpoint(sp)
+
+    def _offboard_setpoint(self, sp: OffboardSetpoint) -> CommandResult:
         with self._lock:
             self._offboard_t_ns = self.core.t_ns
             self._offboard_sp, self._offboard_kind = sp, OffboardKind.SETPOINT

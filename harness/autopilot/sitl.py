@@ -36,6 +36,7 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.runlocal import RunLocalPeers
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
+from harness.autopilot.params import Params
 from harness.core import lifeline
 from harness.core.clock import WALL, Clock
 from harness.core.errors import HarnessError, ScenarioError
@@ -137,6 +138,10 @@ def attach_mavlink(
         firmware=firmware,
         trust_unsigned=trust_unsigned,
     )
+    own = getattr(server.dialect, "params", None)  # a personality's own table (ArduCopter's names)
+    if run_dir is not None and isinstance(own, Params) and own is not ap.params:
+        for refused in persist_params(own, run_dir, ap.vehicle, firmware.value):
+            log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
     if hub is None:
         server.start()
     else:

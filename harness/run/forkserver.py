@@ -49,9 +49,10 @@ def _run_child(req: dict[str, Any], server: int, fds: Sequence[int]) -> int:
         fd = os.open(path, flags, 0o644)
         os.dup2(fd, target)
         os.close(fd)
-    devnull = os.open(os.devnull, os.O_RDONLY)
-    os.dup2(devnull, 0)
-    os.close(devnull)
+    r, w = os.pipe()  # stdin at end-of-file (a closed pipe: unlike /dev/null, epoll can wait on it)
+    os.close(w)
+    os.dup2(r, 0)
+    os.close(r)
     os.chdir(req["cwd"])
     for key in req["unset"]:
         os.environ.pop(key, None)

@@ -399,14 +399,16 @@ class Launcher:
             menv["HARNESS_FIRMWARE"] = fw.value
             if fw is Firmware.ARDUPILOT:  # SERIAL0: a script's tcp:127.0.0.1:5760 is sent here
                 menv["HARNESS_MAVLINK_TCP_PORT"] = str(self._tcp_port(i))
-            sup.start(f"mission-{i}", _mission_argv(address, i, m), env=menv, forked=forked)
+            sup.start(
+                f"mission-{i}", _mission_argv(address, i, m), env=menv, forked=forked, terminal=plan.mission_stdin
+            )
             pump()
         if plan.swarm_mission is not None:
             team = swarm.swarm_vehicles(plan.vehicles, self.api_port_base, plan.firmware_of, self._tcp_port)
             m = plan.swarm_mission
             name = swarm.peer_name(m.script.name)
             argv = _mission_argv(address, swarm.SWARM_VEHICLE, m, name)
-            sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team), forked=forked)
+            sup.start("swarm-mission", argv, env=swarm.swarm_env(env, team), forked=forked, terminal=plan.mission_stdin)
 
     def _autopilot_groups(self) -> list[range]:
         """The vehicles of each autopilot process (the first share stays in this process when in-process)."""

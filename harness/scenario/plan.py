@@ -96,6 +96,9 @@ class LaunchPlan:
     tcp_port_step: int = 1
     gcs_extra_ports: tuple[int, ...] = ()
     """More UDP outputs of ArduPilot vehicles (``harness sitl``: 14551, beside the GCS port 14550)."""
+    mission_stdin: bool = False
+    """The terminal's stdin to the run's one mission, its output shown here as well (``harness run --stdin``:
+    prompt-driven scripts); otherwise a mission's stdin is at end-of-file from the start."""
     signing_key_file: Path | None = None
     """MAVLink 2 signing on every link (64 hex characters in the file): unsigned frames are obeyed only from this
     run's own processes (``docs/mavlink.md``, "Signing")."""

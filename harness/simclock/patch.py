@@ -10,8 +10,11 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures.thread as _futures_thread
 import datetime as _dt
+import io
+import os
 import queue as _queue
 import selectors
+import sys
 import threading
 import time
 from asyncio import unix_events
@@ -97,6 +100,9 @@ def install(rt: SimRuntime) -> None:
 
     for (owner, name), value in iowait.patches(rt).items():
         _set(owner, name, value)
+    stdin = _idle_stdin(rt, sys.stdin)
+    if stdin is not None:
+        _set(sys, "stdin", stdin)
 
     loop_cls = _make_loop_class(rt)
     policy_cls = type("SimEventLoopPolicy", (asyncio.DefaultEventLoopPolicy,), {"_loop_factory": loop_cls})
@@ -139,6 +145,40 @@ def _make_executor_init() -> Callable[..., None]:
         self._work_queue = _queue.Queue()
 
     return __init__
+
+
+# --- stdin ---------------------------------------------------------------------------------------
+class _IdleReader(io.RawIOBase):
+    """A descriptor whose blocking reads are sim-time waits without a deadline: a script waiting for a line
+    (``harness run --stdin``) counts as idle, so the simulation goes on meanwhile; at end-of-file (the
+    mission's stdin without ``--stdin``) a read returns at once."""
+
+    def __init__(self, rt: SimRuntime, fd: int) -> None:
+        super().__init__()
+        self._rt = rt
+        self._fd = fd
+
+    def readable(self) -> bool:
+        return True
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def readinto(self, b: Any) -> int:
+        while not iowait.real_select([self._fd], [], [], 0)[0]:
+            iowait.wait(self._rt, [self._fd])
+        data = os.read(self._fd, len(b))
+        b[: len(data)] = data
+        return len(data)
+
+
+def _idle_stdin(rt: SimRuntime, stdin: Any) -> io.TextIOWrapper | None:
+    try:
+        fd = stdin.fileno()
+    except (AttributeError, OSError, ValueError):
+        return None  # no real descriptor (a test's replacement): leave it
+    enc, errors = getattr(stdin, "encoding", None) or "utf-8", getattr(stdin, "errors", None) or "strict"
+    return io.TextIOWrapper(io.BufferedReader(_IdleReader(rt, fd)), encoding=enc, errors=errors)
 
 
 # --- datetime ------------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.tcp import take_frames
 from harness.autopilot.params import Params
 from harness.core.errors import ScenarioError
+from harness.core.geo import quat_from_euler
 from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
@@ -368,3 +369,128 @@ def test_tcp_clients_come_and_go(copter: tuple[Rig, Client, int]) -> None:
     while len(tcp.destinations(0)) != 1 and time.monotonic() < end:
         time.sleep(0.05)
     assert len(tcp.destinations(0)) == 1  # only the first client is left
+
+
+def test_streams_of_arducopters_groups_rc_imu_pressure_and_outputs(copter: tuple[Rig, Client, int]) -> None:
+    """DroneKit asks for every stream at 4 Hz: the RAW_SENS and RC_CHAN groups come too."""
+    _rig, c, _port = copter
+    c.recv("HEARTBEAT")
+    c.conn.mav.request_data_stream_send(1, 1, M.MAV_DATA_STREAM_ALL, 4, 1)
+    rc = c.recv("RC_CHANNELS")
+    assert rc.chancount == 16 and rc.chan3_raw == 1000  # SITL's radio: throttle low, the rest centred
+    assert [rc.chan1_raw, rc.chan2_raw, rc.chan4_raw, rc.chan16_raw, rc.chan17_raw] == [1500, 1500, 1500, 1500, 0]
+    assert c.recv("RC_CHANNELS_RAW").chan3_raw == 1000
+    imu = c.recv("RAW_IMU")
+    assert -1100 < imu.zacc < -900 and abs(imu.xacc) < 100  # mG, at rest
+    assert -1100 < c.recv("SCALED_IMU2").zacc < -900
+    assert 900.0 < c.recv("SCALED_PRESSURE").press_abs < 1100.0  # hPa
+    assert c.recv("SERVO_OUTPUT_RAW").servo1_raw == 1000  # disarmed
+    c.recv(["POWER_STATUS"])
+    c.recv(["MEMINFO"])
+    n = sum(1 for _ in range(40) if c.conn.recv_match(type="RAW_IMU", blocking=True, timeout=0.3) is not None)
+    assert n > 0
+    c.conn.mav.request_data_stream_send(1, 1, M.MAV_DATA_STREAM_RAW_SENSORS, 0, 0)  # stop the group
+    time.sleep(0.5)
+    while c.conn.recv_match(blocking=False) is not None:
+        pass
+    assert c.conn.recv_match(type="RAW_IMU", blocking=True, timeout=1.0) is None
+
+
+def _override(c: Client, roll: int = 0, pitch: int = 0, thr: int = 0, yaw: int = 0) -> None:
+    c.conn.mav.rc_channels_override_send(1, 1, roll, pitch, thr, yaw, 65535, 65535, 65535, 65535)
+
+
+def test_rc_override_flies_alt_hold_and_times_out(copter: tuple[Rig, Client, int]) -> None:
+    """ALT_HOLD on RC_CHANNELS_OVERRIDE: throttle above mid climbs, mid holds, roll right moves east; the
+    channels read back; RC_OVERRIDE_TIME after the last override the radio's low throttle lands the vehicle."""
+    rig, c, _port = copter
+    c.recv("HEARTBEAT")
+    c.conn.mav.request_data_stream_send(1, 1, M.MAV_DATA_STREAM_ALL, 10, 1)
+    assert c.mode("ALT_HOLD").result == M.MAV_RESULT_ACCEPTED
+    _override(c, 1500, 1500, 1100, 1500)
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    assert c.recv("RC_CHANNELS", 3.0, lambda m: m.chan3_raw == 1100).chan1_raw == 1500
+    end = time.monotonic() + 40
+    while rig.ap.state().rel_alt_m < 5.0:
+        assert time.monotonic() < end, "no climb on throttle 1750"
+        _override(c, 1500, 1500, 1750, 1500)
+        time.sleep(0.1)
+    assert c.recv("HEARTBEAT").custom_mode == CopterMode.ALT_HOLD
+    s0 = rig.ap.state()
+    for _ in range(20):  # mid throttle: hold the altitude; roll right
+        _override(c, 1700, 1500, 1500, 1500)
+        time.sleep(0.1)
+    s1 = rig.ap.state()
+    assert abs(s1.rel_alt_m - s0.rel_alt_m) < 1.0 and s1.pos_ned_m[1] - s0.pos_ned_m[1] > 1.0
+    c.recv("LOCAL_POSITION_NED", 3.0)
+    # no more overrides: 3 s of sim time later (RC_OVERRIDE_TIME) the vehicle lands
+    c.recv("RC_CHANNELS", 10.0, lambda m: m.chan3_raw == 1000)
+    c.recv("HEARTBEAT", 5.0, lambda m: m.custom_mode == CopterMode.LAND)
+
+
+def _attitude(c: Client, pitch_deg: float = 0.0, thrust: float = 0.5) -> None:
+    q = quat_from_euler(0.0, math.radians(pitch_deg), 0.0)
+    c.conn.mav.set_attitude_target_send(0, 1, 1, 0b00000100, q, 0, 0, 0, thrust)  # DroneKit's example's mask
+
+
+def test_set_attitude_target_flies_guided_nogps_with_thrust_as_climb_rate(copter: tuple[Rig, Client, int]) -> None:
+    """DroneKit's set_attitude_target.py: GUIDED_NOGPS, arm, thrust 0.7 climbs (GUID_OPTIONS 0: thrust is a
+    climb rate, 0.5 holds the altitude), pitch -5 deg moves forward; outside GUIDED the targets are ignored."""
+    rig, c, _port = copter
+    c.recv("HEARTBEAT")
+    _attitude(c, thrust=0.9)  # STABILIZE: ignored
+    assert c.mode("GUIDED_NOGPS").result == M.MAV_RESULT_ACCEPTED
+    assert c.recv("HEARTBEAT", 3.0, lambda m: m.custom_mode == CopterMode.GUIDED_NOGPS)
+    assert rig.ap.state().mode is FlightMode.HOLD
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    end = time.monotonic() + 40
+    while rig.ap.state().rel_alt_m < 2.4:
+        assert time.monotonic() < end, "no climb on thrust 0.7"
+        _attitude(c, thrust=0.7)
+        time.sleep(0.1)
+    s0 = rig.ap.state()
+    assert s0.mode is FlightMode.OFFBOARD and c.recv("HEARTBEAT").custom_mode == CopterMode.GUIDED_NOGPS
+    for _ in range(15):
+        _attitude(c, thrust=0.5)
+        time.sleep(0.1)
+    s1 = rig.ap.state()
+    assert abs(s1.rel_alt_m - s0.rel_alt_m) < 0.8  # held (the climb brakes within it)
+    for _ in range(15):
+        _attitude(c, pitch_deg=-5.0, thrust=0.5)
+        time.sleep(0.1)
+    s2 = rig.ap.state()
+    fwd = (s2.pos_ned_m[0] - s1.pos_ned_m[0]) * math.cos(s1.yaw_rad) + (s2.pos_ned_m[1] - s1.pos_ned_m[1]) * math.sin(
+        s1.yaw_rad
+    )
+    assert fwd > 1.0 and abs(s2.rel_alt_m - s1.rel_alt_m) < 1.0
+    assert c.mode("LAND").result == M.MAV_RESULT_ACCEPTED
+
+
+def test_do_change_speed_takes_arducopters_limits(copter: tuple[Rig, Client, int]) -> None:
+    _rig, c, _port = copter
+    c.recv("HEARTBEAT")
+    assert c.command(M.MAV_CMD_DO_CHANGE_SPEED, 1, 15).result == M.MAV_RESULT_ACCEPTED  # beyond PX4's 12 m/s
+    assert c.command(M.MAV_CMD_DO_CHANGE_SPEED, 2, 4).result == M.MAV_RESULT_ACCEPTED  # climb speed
+    assert c.command(M.MAV_CMD_DO_CHANGE_SPEED, 1, 0).result == M.MAV_RESULT_FAILED
+
+
+def test_reboot_restarts_the_flight_stack_in_place(copter: tuple[Rig, Client, int]) -> None:
+    rig, c, _port = copter
+    c.recv("HEARTBEAT")
+    assert c.mode("GUIDED").result == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1).result == M.MAV_RESULT_FAILED  # armed
+    assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0).result == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 0).result == M.MAV_RESULT_UNSUPPORTED
+    assert c.command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1).result == M.MAV_RESULT_ACCEPTED
+    assert c.recv("STATUSTEXT", 5.0, lambda m: m.text.startswith("ArduCopter V4.5.7"))
+    hb = c.recv("HEARTBEAT", 3.0)
+    assert hb.custom_mode == CopterMode.STABILIZE and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+    assert rig.ap.state().home is None or rig.ap.state().t_ns > 0
+    # the new estimator converges and the vehicle arms again
+    c.recv("HEARTBEAT", 3.0)
+    assert c.mode("GUIDED").result == M.MAV_RESULT_ACCEPTED
+    end = time.monotonic() + 30
+    while c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result != M.MAV_RESULT_ACCEPTED:
+        assert time.monotonic() < end, "not armable after the reboot"
+        time.sleep(0.5)

@@ -85,6 +85,11 @@ def test_mavproxy_flies_an_ardupilot_vehicle_with_its_own_commands(tmp_path: Pat
         got = con.expect(r"Received (\d+) parameters", 60)
         assert int(got.group(1)) == len(CopterParams(Params(), 1))
         con.until("param show RTL_ALT", r"RTL_ALT\s+1500(\.0*)?$", 10)
+        # ArduCopter's own table (issue 23): parameters stored without being flown answer too
+        con.until("param show LOIT_SPEED", r"LOIT_SPEED\s+1250(\.0*)?$", 10)
+        con.until("param show FS_THR_VALUE", r"FS_THR_VALUE\s+975(\.0*)?$", 10)
+        con.send("param set RC_OVERRIDE_TIME 5")
+        con.until("param show RC_OVERRIDE_TIME", r"RC_OVERRIDE_TIME\s+5(\.0*)?$", 10)
 
         con.send("mode GUIDED")
         con.expect(r"GUIDED>|Mode GUIDED", 15)

@@ -21,8 +21,9 @@ from harness.autopilot.params import Params
 log = logging.getLogger(__name__)
 
 
-def store_path(run_dir: Path, vehicle: int) -> Path:
-    return run_dir / "params" / f"vehicle-{vehicle}.json"
+def store_path(run_dir: Path, vehicle: int, firmware: str = "") -> Path:
+    """The core's parameters: ``vehicle-<i>.json``; a personality's own table: ``vehicle-<i>-<firmware>.json``."""
+    return run_dir / "params" / (f"vehicle-{vehicle}-{firmware}.json" if firmware else f"vehicle-{vehicle}.json")
 
 
 class ParamStore:
@@ -54,11 +55,12 @@ class ParamStore:
             os.replace(tmp, self.path)
 
 
-def persist_params(params: Params, run_dir: Path, vehicle: int) -> list[str]:
-    """Restore the vehicle's saved parameters into ``params`` and save every later change.
+def persist_params(params: Params, run_dir: Path, vehicle: int, firmware: str = "") -> list[str]:
+    """Restore the vehicle's saved parameters into ``params`` and save every later change (``firmware``: the
+    file of a personality's own table, e.g. ArduCopter's names, beside the core's).
 
     Returns the reasons of saved values that were refused (e.g. a range that changed since)."""
-    store = ParamStore(store_path(run_dir, vehicle))
+    store = ParamStore(store_path(run_dir, vehicle, firmware))
     refused = params.update(store.load())
     for reason in refused:
         log.warning("vehicle %d: saved parameter not restored: %s", vehicle, reason)

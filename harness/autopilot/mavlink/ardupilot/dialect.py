@@ -24,11 +24,21 @@ from collections.abc import Callable, Mapping
 from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, CommandResult, FlightMode, MavFrame, Severity, StatusText, VehicleState
+from harness.autopilot.api import (
+    AutopilotApi,
+    CommandResult,
+    FlightMode,
+    MavFrame,
+    OffboardSetpoint,
+    Severity,
+    StatusText,
+    VehicleState,
+)
 from harness.autopilot.mavlink.ardupilot.adapter import CopterApi, copter_text
 from harness.autopilot.mavlink.ardupilot.guided import (
     RELATIVE_GLOBAL,
     Goto,
+    attitude_target,
     geo_of_local,
     global_point,
     global_target,
@@ -36,8 +46,11 @@ from harness.autopilot.mavlink.ardupilot.guided import (
     mission_item_goto,
 )
 from harness.autopilot.mavlink.ardupilot.modes import (
+    ALT_HOLDING,
     ARMABLE,
+    ATTITUDE_TARGETS,
     CORE_MODE,
+    STICK_CORE_MODE,
     SUPPORTED,
     USER_TAKEOFF,
     CopterMode,
@@ -45,11 +58,14 @@ from harness.autopilot.mavlink.ardupilot.modes import (
     copter_mode,
 )
 from harness.autopilot.mavlink.ardupilot.params import CopterParams
+from harness.autopilot.mavlink.ardupilot.rc import CHANNELS, RcInput
 from harness.autopilot.mavlink.ardupilot.streams import (
     DATA_STREAM_GROUPS,
     GROUP_MESSAGES,
     MAX_RATE_HZ,
+    SENSOR_BUILDERS,
     ekf_status_report,
+    rc_builders,
 )
 from harness.autopilot.mavlink.commands import FORCE_MAGIC, CommandIn, CommandOutcome
 from harness.autopilot.mavlink.dialect_api import DialectHost
@@ -85,6 +101,9 @@ CAPABILITIES = (
 )
 FLIGHT_SW_VERSION = (4 << 24) | (5 << 16) | (7 << 8) | 255
 """Reported as ArduCopter 4.5.7 (official release)."""
+BOOT_BANNER = "ArduCopter V4.5.7"
+WPNAV_SPEED_MIN_CM_S = 20.0
+"""AC_WPNav ignores a horizontal speed below this."""
 _LINK_SR = {"tcp": 0, "api": 1, "gcs": 2}
 """Which ``SRx_`` set a REQUEST_DATA_STREAM on a link writes (SERIAL0 = the TCP link)."""
 _AUTO_FLAG_MODES = frozenset({CopterMode.AUTO, CopterMode.GUIDED, CopterMode.RTL, CopterMode.CIRCLE, CopterMode.LAND})
@@ -102,9 +121,12 @@ class CopterDialect:
         self.params = CopterParams(registry if isinstance(registry, Params) else Params(), sysid)
         self.api: AutopilotApi = CopterApi(core, self.params)
         self.modes = ModeTracker()
+        self.rc = RcInput(self.params)
         self.builders: Mapping[int, Builder] = {
             apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report,
             _M.MAVLINK_MSG_ID_SYS_STATUS: self._sys_status,
+            **SENSOR_BUILDERS,
+            **rc_builders(self.rc),
         }
         self.stream_defaults: Mapping[int, int] = self._intervals()
         self._host: DialectHost | None = None
@@ -112,9 +134,12 @@ class CopterDialect:
         self._yaw_core_mode: FlightMode | None = None
         self._roi: tuple[float, float, float] | None = None
         self._prearm_next_ns = 0
+        self._boot_texts: list[str] = []
+        """What ArduCopter says when it boots, sent after a reboot."""
         self._armed_at_t_ns: int | None = None
         """Sim time of the state snapshot when an ARM was accepted (the snapshot shows it from the next tick)."""
         self.params.subscribe(self._param_changed)
+        self._rc_timeout_to_core()
 
     def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None:
         self._host = host
@@ -166,6 +191,8 @@ class CopterDialect:
         return out
 
     def _param_changed(self, name: str, _value: float) -> None:
+        if name == "RC_OVERRIDE_TIME":
+            self._rc_timeout_to_core()
         if name.startswith("SR") and self._host is not None:
             new = self._intervals()
             for ids in GROUP_MESSAGES.values():
@@ -196,7 +223,13 @@ class CopterDialect:
         st = self.api.state()
         if mode == self.modes.shown(st.mode):
             return CommandResult.accepted()
-        if mode is CopterMode.STABILIZE:
+        rc_live = self.rc.any_active(st.t_ns)
+        if self.rc.received:
+            self._core_rc(rc_live)
+        if mode in STICK_CORE_MODE and rc_live:  # a pilot: the mode flies on the sticks
+            self._sticks(st, mode)
+            r = self.api.set_mode(STICK_CORE_MODE[mode])
+        elif mode is CopterMode.STABILIZE:
             if st.armed and st.in_air:
                 return CommandResult.denied("Mode change to STABILIZE failed: it needs RC input, none is configured")
             r = self.api.hold()
@@ -221,6 +254,55 @@ class CopterDialect:
         speed = abs(math.radians(rate)) * radius
         return self.api.orbit(radius if rate >= 0 else -radius, max(speed, 0.1), lat, lon, st.alt_amsl_m)
 
+    # ------------------------------------------------------------------ RC input
+    def _rc_timeout_to_core(self) -> None:
+        """The core's stick time-out is ArduCopter's override time-out (a negative one never ends: the core's
+        longest)."""
+        t = self.params["RC_OVERRIDE_TIME"]
+        core = self.params.core
+        v = 35.0 if t < 0 else min(t, 35.0)
+        if "COM_RC_LOSS_T" in core and core["COM_RC_LOSS_T"] != v:
+            core.set("COM_RC_LOSS_T", v)
+
+    def _core_rc(self, live: bool) -> None:
+        """Sticks count for the core (COM_RC_IN_MODE 1) once RC input came; 4 (none) otherwise."""
+        core = self.params.core
+        want = 1 if live else 4
+        if "COM_RC_IN_MODE" in core and int(core["COM_RC_IN_MODE"]) != want:
+            core.set("COM_RC_IN_MODE", want)
+
+    def _sticks(self, st: VehicleState, mode: CopterMode) -> None:
+        manual: Callable[[int, int, int, int], CommandResult] | None = getattr(self.api, "manual_control", None)
+        if manual is not None:
+            manual(*self.rc.sticks(st.t_ns, mode in ALT_HOLDING))
+
+    def _rc_override(self, m: MAVLinkMessage, origin: Origin) -> None:
+        """RC_CHANNELS_OVERRIDE (``rc.py``): in a pilot mode the sticks fly the vehicle; a released channel reads
+        the radio again at once (SITL's: throttle low)."""
+        st = self.api.state()
+        values = [int(getattr(m, f"chan{i}_raw", 0xFFFF if i <= 8 else 0)) for i in range(1, CHANNELS + 1)]
+        if not self.rc.override(origin.sysid, values, st.t_ns):
+            return
+        live = self.rc.any_active(st.t_ns)
+        shown = self.modes.shown(st.mode)
+        if shown not in STICK_CORE_MODE:
+            self._core_rc(live)
+            return
+        if not live and not st.in_air:  # every channel released on the ground: the mode flies without a pilot
+            if st.mode is STICK_CORE_MODE[shown]:
+                r = self.api.hold() if shown is CopterMode.STABILIZE else self.api.set_mode(CORE_MODE[shown])
+                if not r.ok:
+                    log.info("vehicle %d: RC released in %s: %s", self.api.vehicle, shown.name, r.reason)
+            self._core_rc(False)
+            return
+        self._core_rc(True)
+        self._sticks(st, shown)
+        core_mode = STICK_CORE_MODE[shown]
+        if st.mode is not core_mode:
+            r = self.api.set_mode(core_mode)
+            if not r.ok:
+                log.info("vehicle %d: RC override in %s: %s", self.api.vehicle, shown.name, r.reason)
+
     # ------------------------------------------------------------------ commands
     def command_handlers(self) -> Mapping[int, Callable[[CommandIn], CommandOutcome]]:
         return {
@@ -232,7 +314,48 @@ class CopterDialect:
             CMD_DO_SET_ROI_LOCATION: self._set_roi,
             CMD_DO_SET_ROI_NONE: lambda c: self._roi_none(),
             _M.MAV_CMD_DO_REPOSITION: self._reposition,
+            _M.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
+            _M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: self._reboot,
         }
+
+    def _change_speed(self, cmd: CommandIn) -> CommandOutcome:
+        """DO_CHANGE_SPEED as ArduCopter takes it: param2 > 0 m/s, else FAILED; param1 2 / 3 climb / descent
+        speed (accepted, not flown: the core has no separate one), else the horizontal speed, which any value
+        sets (below WPNAV's 20 cm/s minimum it is ignored); the core flies at most its MPC_XY_VEL_MAX."""
+        kind, speed = cmd.params[0], cmd.params[1]
+        if not (math.isfinite(speed) and speed > 0.0):
+            return CommandOutcome(CommandResult.failed(f"Change speed failed: speed {speed} m/s is not above 0"))
+        if math.isfinite(kind) and kind > 1.9:
+            return CommandOutcome(CommandResult.accepted())
+        if speed * 100.0 < WPNAV_SPEED_MIN_CM_S:
+            return CommandOutcome(CommandResult.accepted())
+        core = self.params.core
+        flown = min(speed, core["MPC_XY_VEL_MAX"]) if "MPC_XY_VEL_MAX" in core else speed
+        if flown != speed:
+            log.info(
+                "vehicle %d: DO_CHANGE_SPEED %g m/s flies at %g m/s (MPC_XY_VEL_MAX)", self.api.vehicle, speed, flown
+            )
+        r = self.api.change_speed(flown)
+        return CommandOutcome(r if r.ok else CommandResult.failed(f"Change speed failed: {r.reason}"))
+
+    def _reboot(self, cmd: CommandIn) -> CommandOutcome:
+        """PREFLIGHT_REBOOT_SHUTDOWN param1 1 (or 3, to the bootloader): on the ground and disarmed, the flight
+        stack restarts in place (``Autopilot.reboot``), in STABILIZE, and says so as ArduCopter boots."""
+        if cmd.params[0] not in (1.0, 3.0):
+            return CommandOutcome(CommandResult.unsupported("Reboot: only param1 = 1 (reboot the autopilot) is done"))
+        fn: Callable[[], CommandResult] | None = getattr(self.api, "reboot", None)
+        if fn is None:
+            return CommandOutcome(CommandResult.unsupported("this autopilot cannot reboot"))
+        r = fn()
+        if not r.ok:
+            return CommandOutcome(r)
+        self.modes = ModeTracker()
+        self.rc.reset()
+        self._yaw_hold = self._roi = self._yaw_core_mode = None
+        self._armed_at_t_ns = None
+        self._prearm_next_ns = 0
+        self._boot_texts = [BOOT_BANNER, "Frame: QUAD/X"]
+        return CommandOutcome(r, mode_or_arming_changed=True)
 
     def _reposition(self, cmd: CommandIn) -> CommandOutcome:
         """DO_REPOSITION (COMMAND_INT) as ArduCopter takes it: a goto in GUIDED; from another mode only with
@@ -356,7 +479,34 @@ class CopterDialect:
         if mid in (_M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED, _M.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT):
             self._position_target(m, now)
             return []
+        if mid == _M.MAVLINK_MSG_ID_RC_CHANNELS_OVERRIDE:
+            self._rc_override(m, origin)
+            return []
+        if mid == _M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
+            self._attitude_target(m, now)
+            return []
         return None
+
+    def _attitude_target(self, m: MAVLinkMessage, now: int) -> None:
+        """SET_ATTITUDE_TARGET in GUIDED and GUIDED_NOGPS (:func:`.guided.attitude_target`); ignored elsewhere,
+        as ArduCopter does. It runs on the core's offboard control, which stops after GUID_TIMEOUT without one."""
+        st = self.api.state()
+        if self.modes.shown(st.mode) not in ATTITUDE_TARGETS:
+            log.debug("vehicle %d: attitude target ignored outside GUIDED", self.api.vehicle)
+            return
+        p = self.params
+        sp = attitude_target(m, st, p["WPNAV_SPEED_UP"] / 100.0, p["WPNAV_SPEED_DN"] / 100.0)
+        axes: Callable[[OffboardSetpoint], CommandResult] | None = getattr(self.api, "set_offboard_axes", None)
+        if isinstance(sp, str):
+            r = CommandResult.denied(sp)
+        elif axes is None:
+            r = CommandResult.unsupported("attitude targets need set_offboard_axes of the flight core")
+        else:
+            r = axes(sp)
+            if r.ok and st.mode is not FlightMode.OFFBOARD:
+                r = self.api.set_mode(FlightMode.OFFBOARD)
+        if not r.ok and r.reason and self._host is not None:
+            self._host.say(Severity.WARNING, r.reason, now)
 
     def _guided_item(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out]:
         st = self.api.state()
@@ -412,6 +562,10 @@ class CopterDialect:
 
     # ------------------------------------------------------------------ periodic
     def tick(self, state: VehicleState, now: int) -> list[Out]:
+        if self._boot_texts and self._host is not None:
+            for text in self._boot_texts:
+                self._host.say(Severity.INFO, text, now)
+            self._boot_texts = []
         if self._yaw_hold is not None and state.mode is not self._yaw_core_mode and state.in_air:
             self._yaw_core_mode = state.mode  # the core entered a mode (end of takeoff, velocity targets):
             self._set_yaw(self._yaw_hold)  # ArduCopter keeps the CONDITION_YAW heading within GUIDED

@@ -163,3 +163,51 @@ def mission_item_goto(m: MAVLinkMessage, state: VehicleState) -> Goto | str:
     if isinstance(p, str):
         return p
     return Goto(p[0], p[1], p[2])
+
+
+_ATT_YAW_RATE_IGNORE = mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE
+_ATT_THRUST_IGNORE = mavlink2.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE
+_ATT_ATTITUDE_IGNORE = mavlink2.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
+_G = 9.80665
+MAX_TILT_RAD = math.radians(60.0)
+
+
+def climb_rate_of_thrust(thrust: float, up_m_s: float, down_m_s: float) -> float:
+    """ArduCopter's reading of SET_ATTITUDE_TARGET's thrust with GUID_OPTIONS bit 3 clear (the default): a
+    climb rate, 0.5 = hold the altitude, 1 = climb at WPNAV_SPEED_UP, 0 = descend at WPNAV_SPEED_DN (m/s, up +)."""
+    t = min(max(thrust, 0.0), 1.0)
+    if t > 0.5:
+        return (t - 0.5) * 2.0 * up_m_s
+    return -(0.5 - t) * 2.0 * abs(down_m_s)
+
+
+def attitude_target(m: MAVLinkMessage, st: VehicleState, up_m_s: float, down_m_s: float) -> OffboardSetpoint | str:
+    """A SET_ATTITUDE_TARGET in GUIDED / GUIDED_NOGPS as a core setpoint: the roll and pitch asked for as the
+    horizontal acceleration they make (g tan(angle), the heading frame), the thrust as a climb rate, the
+    yaw from the quaternion (or the body yaw rate when its bit is clear). Or why it is refused."""
+    mask = m.type_mask
+    if mask & _ATT_THRUST_IGNORE:
+        return "SET_ATTITUDE_TARGET without thrust is ignored in GUIDED (ArduCopter needs it)"
+    q = tuple(float(v) for v in m.q)
+    if mask & _ATT_ATTITUDE_IGNORE or not all(math.isfinite(v) for v in q) or sum(v * v for v in q) < 1e-6:
+        roll = pitch = 0.0
+        yaw: float | None = None
+    else:
+        n = math.sqrt(sum(v * v for v in q))
+        w, x, y, z = (v / n for v in q)
+        roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+        pitch = math.asin(min(max(2.0 * (w * y - z * x), -1.0), 1.0))
+        yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    yaw_rate: float | None = None
+    if not mask & _ATT_YAW_RATE_IGNORE and math.isfinite(m.body_yaw_rate):
+        yaw_rate, yaw = float(m.body_yaw_rate), None
+    if not math.isfinite(m.thrust):
+        return "SET_ATTITUDE_TARGET: thrust is not finite"
+    roll = min(max(roll, -MAX_TILT_RAD), MAX_TILT_RAD)
+    pitch = min(max(pitch, -MAX_TILT_RAD), MAX_TILT_RAD)
+    fwd, right = -_G * math.tan(pitch), _G * math.tan(roll)
+    heading = st.yaw_rad
+    c, s = math.cos(heading), math.sin(heading)
+    accel = (fwd * c - right * s, fwd * s + right * c, math.nan)
+    vz = -climb_rate_of_thrust(float(m.thrust), up_m_s, down_m_s)
+    return OffboardSetpoint(None, (math.nan, math.nan, vz), accel, yaw, yaw_rate if yaw is None else None)

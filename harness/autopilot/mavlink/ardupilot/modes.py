@@ -57,6 +57,7 @@ SUPPORTED: frozenset[CopterMode] = frozenset(
         CopterMode.LAND,
         CopterMode.POSHOLD,
         CopterMode.BRAKE,
+        CopterMode.GUIDED_NOGPS,
     }
 )
 """The modes this autopilot flies; the others are refused with a reason."""
@@ -72,20 +73,34 @@ CORE_MODE: dict[CopterMode, FlightMode] = {
     CopterMode.LAND: FlightMode.LAND,
     CopterMode.POSHOLD: FlightMode.POSCTL,
     CopterMode.BRAKE: FlightMode.HOLD,
+    CopterMode.GUIDED_NOGPS: FlightMode.HOLD,  # until attitude targets come (they fly on OFFBOARD)
 }
 """The core mode an ArduCopter mode starts on."""
 
+STICK_CORE_MODE: dict[CopterMode, FlightMode] = {
+    CopterMode.STABILIZE: FlightMode.STABILIZED,
+    CopterMode.ALT_HOLD: FlightMode.ALTCTL,
+    CopterMode.LOITER: FlightMode.POSCTL,
+    CopterMode.POSHOLD: FlightMode.POSCTL,
+}
+"""The core mode an ArduCopter pilot mode flies on while RC input (RC_CHANNELS_OVERRIDE) is in force."""
+ALT_HOLDING: frozenset[CopterMode] = frozenset({CopterMode.ALT_HOLD, CopterMode.LOITER, CopterMode.POSHOLD})
+"""Pilot modes whose throttle stick is a climb rate around mid stick (``THR_DZ``)."""
+ATTITUDE_TARGETS: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.GUIDED_NOGPS})
+"""Modes that fly SET_ATTITUDE_TARGET."""
+
 _COMPATIBLE: dict[CopterMode, frozenset[FlightMode]] = {
-    CopterMode.STABILIZE: frozenset({FlightMode.HOLD}),
+    CopterMode.STABILIZE: frozenset({FlightMode.HOLD, FlightMode.STABILIZED}),
     CopterMode.ALT_HOLD: frozenset({FlightMode.ALTCTL}),
     CopterMode.AUTO: frozenset({FlightMode.MISSION, FlightMode.HOLD}),  # the core holds at the mission's end
     CopterMode.GUIDED: frozenset({FlightMode.HOLD, FlightMode.TAKEOFF, FlightMode.OFFBOARD}),
-    CopterMode.LOITER: frozenset({FlightMode.HOLD}),
+    CopterMode.LOITER: frozenset({FlightMode.HOLD, FlightMode.POSCTL}),
     CopterMode.RTL: frozenset({FlightMode.RTL}),
     CopterMode.CIRCLE: frozenset({FlightMode.ORBIT}),
     CopterMode.LAND: frozenset({FlightMode.LAND}),
     CopterMode.POSHOLD: frozenset({FlightMode.POSCTL}),
     CopterMode.BRAKE: frozenset({FlightMode.HOLD}),
+    CopterMode.GUIDED_NOGPS: frozenset({FlightMode.HOLD, FlightMode.OFFBOARD}),
 }
 """While the core is in one of these, the ArduCopter mode asked for is still the one shown."""
 
@@ -105,7 +120,14 @@ SHOWN_FOR_CORE: dict[FlightMode, CopterMode] = {
 """What ArduCopter would call a core mode entered without an ArduCopter mode request (a failsafe...)."""
 
 ARMABLE: frozenset[CopterMode] = frozenset(
-    {CopterMode.STABILIZE, CopterMode.ALT_HOLD, CopterMode.GUIDED, CopterMode.LOITER, CopterMode.POSHOLD}
+    {
+        CopterMode.STABILIZE,
+        CopterMode.ALT_HOLD,
+        CopterMode.GUIDED,
+        CopterMode.LOITER,
+        CopterMode.POSHOLD,
+        CopterMode.GUIDED_NOGPS,
+    }
 )
 """ArduCopter refuses to arm in AUTO, RTL, LAND, CIRCLE and BRAKE ("Mode not armable")."""
 

@@ -13,9 +13,12 @@ fence parameters are combined: ``FENCE_ENABLE`` = 0 turns the core's fence limit
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 from harness.autopilot.api import CommandResult
+from harness.autopilot.mavlink.ardupilot.copter_table import TABLE
+from harness.autopilot.param_table import ParamTable, parse_param_table
 from harness.autopilot.params import ParamDef, Params, ParamType
 
 log = logging.getLogger(__name__)
@@ -55,6 +58,7 @@ MAPPED: tuple[Mapped, ...] = (
     Mapped("MOT_THST_HOVER", "MPC_THR_HOVER", 1.0),
     # ArduCopter 3.x name (DroneKit's vehicle_state.py reads it and writes 10): 0-300 in 0.1 % of throttle
     Mapped("THR_MIN", "MPC_THR_MIN", 1000.0, unit="0.1 %", ap_range=(0.0, 300.0)),
+    Mapped("THR_MID", "MPC_THR_HOVER", 1000.0, unit="0.1 %", ap_range=(300.0, 700.0)),  # 3.x: MOT_THST_HOVER
     Mapped("PSC_POSXY_P", "MPC_XY_P", 1.0),
     Mapped("PSC_POSZ_P", "MPC_Z_P", 1.0),
     Mapped("ATC_ANG_RLL_P", "MC_ROLL_P", 1.0),
@@ -72,6 +76,14 @@ CORE_DEFAULTS: dict[str, float] = {
     "COM_OBL_RC_ACT": 5,  # then the vehicle stops and holds, as ArduCopter's GUIDED does
     "MPC_LAND_SPEED": 0.6,  # LAND_SPEED 50 cm/s is below the core's floor; the nearest it takes
     "COM_RC_IN_MODE": 4,  # no stick input: ALT_HOLD and POSHOLD hold the position as they did before sticks
+    # RC_CHANNELS_OVERRIDE (``rc.py``) flies on the core's sticks: ArduCopter's dead zones, not the core's; full
+    # stick tilts ANGLE_MAX's default 30 deg; an override that times out (RC_OVERRIDE_TIME, set by the dialect)
+    # leaves SITL's radio at low throttle: the vehicle lands (in GUIDED, AUTO and hold sticks do not count)
+    "MPC_HOLD_DZ": 0.0,
+    "MPC_MAN_TILT_MAX": 30.0,
+    "COM_RC_LOSS_T": 3.0,
+    "NAV_RCL_ACT": 3,
+    "COM_RCL_EXCEPT": 7,
 }
 """Core parameter defaults of an ArduCopter vehicle (ArduCopter's defaults in core units)."""
 
@@ -129,22 +141,48 @@ def own_defs(sysid: int) -> tuple[ParamDef, ...]:
     return tuple(defs)
 
 
+_INT32 = (-2147483648.0, 2147483647.0)
+
+
+def copter_table() -> ParamTable:
+    """ArduCopter's parameter table (read once per process)."""
+    return parse_param_table(TABLE, "ArduCopter's parameter table")
+
+
+def stored_value(ptype: ParamType, value: float) -> float:
+    """The value ArduCopter keeps for a PARAM_SET of ``value`` (``AP_Param::set_float``): floats as given, integers
+    truncated after adding 0.01 away from zero, within the type's limits (INT32 here: the table has no widths)."""
+    v = float(value)
+    if ptype != ParamType.INT32 or not math.isfinite(v):
+        return v
+    v += 0.01 if v >= 0 else -0.01
+    return float(int(min(max(v, _INT32[0]), _INT32[1])))
+
+
 class CopterParams(Params):
     """ArduCopter-named parameters, kept in step with the core registry ``core``."""
 
     def __init__(self, core: Params, sysid: int) -> None:
         self.core = core
         self._mapped = {m.name: m for m in MAPPED if m.core in core}
-        self._by_core = {m.core: m for m in self._mapped.values()}
+        self._by_core: dict[str, list[Mapped]] = {}
+        for m in self._mapped.values():
+            self._by_core.setdefault(m.core, []).append(m)
+        table = copter_table()
         mapped_defs = []
         for m in self._mapped.values():
             d = core.definition(m.core)
             assert d is not None
             lo, hi = d.min * m.scale, d.max * m.scale  # every value the core can show, and ArduCopter's range
-            if m.ap_range is not None:
-                lo, hi = min(lo, m.ap_range[0]), max(hi, m.ap_range[1])
+            ap_range = table.ranges.get(m.name, m.ap_range)  # the table's (ArduCopter 4.2) where it has one
+            if ap_range is not None:
+                lo, hi = min(lo, ap_range[0]), max(hi, ap_range[1])
             mapped_defs.append(ParamDef(m.name, m.type, round(d.default * m.scale, 6), lo, hi, m.unit))
-        super().__init__(tuple(mapped_defs) + own_defs(sysid))
+        special = {d.name: d for d in (*mapped_defs, *own_defs(sysid))}
+        self.special = frozenset(special)
+        """Mapped and own parameters: flown or applied (the rest of the table is stored only)."""
+        self.table = table
+        super().__init__((*(special.pop(d.name, d) for d in table.defs), *special.values()))
         self._syncing = False
         for m in self._mapped.values():  # current core values (overrides included)
             super().set(m.name, self._from_core(m, core[m.core]))
@@ -161,6 +199,12 @@ class CopterParams(Params):
             return self._set_mapped(m, value)
         if name == "SYSID_THISMAV" and name in self and value != self[name]:
             return CommandResult.denied("SYSID_THISMAV is fixed by the run (the vehicle index + 1)")
+        if name not in self.special and not self._syncing:
+            if name in self.table.read_only:
+                return CommandResult.denied(f"Param write denied ({name})")
+            d = self.definition(name)
+            if d is not None:
+                value = stored_value(d.type, value)
         r = super().set(name, value)
         if r.ok and name.startswith("FENCE_"):
             self.apply_fence()
@@ -180,6 +224,9 @@ class CopterParams(Params):
         self._syncing = True  # the core's change is not shown back: the value stays as the script set it
         try:
             rc = self.core.set(m.core, core_value)
+            for other in self._by_core.get(m.core, ()) if rc.ok else ():  # THR_MID and MOT_THST_HOVER
+                if other is not m:
+                    super().set(other.name, self._from_core(other, core_value))
         finally:
             self._syncing = False
         if not rc.ok:
@@ -188,12 +235,12 @@ class CopterParams(Params):
         return r
 
     def _core_changed(self, core_name: str, value: float) -> None:
-        m = self._by_core.get(core_name)
-        if m is None or self._syncing:
+        if self._syncing:
             return
         self._syncing = True
         try:
-            super().set(m.name, self._from_core(m, value))
+            for m in self._by_core.get(core_name, ()):
+                super().set(m.name, self._from_core(m, value))
         finally:
             self._syncing = False
 
