@@ -45,7 +45,8 @@ from harness.record.links import LinkTracker, ratio_color
 from harness.record.sample import VehicleSample, WorldEvent
 
 if TYPE_CHECKING:
-    from harness.autopilot.api import AutopilotApi, MissionItem
+    from harness.autopilot.api import MissionItem
+    from harness.autopilot.services import System
 
 log = logging.getLogger(__name__)
 
@@ -176,7 +177,7 @@ class RrdRecorder:
         self._last_step_s: float | None = None
         self._links_shown = (False, False)
         self._spawned = False
-        self._aps: Mapping[int, AutopilotApi] = {}
+        self._aps: Mapping[int, System] = {}
         self._ap_seen: dict[tuple[str, int], Any] = {}
         self._mode_t: float | None = None
         self._labels: list[tuple[float, int, str]] = []
@@ -235,7 +236,7 @@ class RrdRecorder:
 
     # -- extra inputs ----------------------------------------------------------------------------------------
 
-    def attach_autopilots(self, aps: Mapping[int, AutopilotApi]) -> None:
+    def attach_autopilots(self, aps: Mapping[int, System]) -> None:
         """The in-process autopilots, read at each batch for mode, battery, home, mission and geofence."""
         self._aps = aps
 
@@ -312,7 +313,7 @@ class RrdRecorder:
         """Each vehicle's name, flight mode and armed state now, kept when it changed (logged with the batch)."""
         for i, ap in sorted(self._aps.items()):
             try:
-                st = ap.state()
+                st = ap.telemetry.state()
             except Exception as exc:  # the view must never end a run
                 log.debug("view: autopilot %d not readable: %r", i, exc)
                 continue
@@ -402,10 +403,10 @@ class RrdRecorder:
         battery_changed = False
         for i, ap in sorted(self._aps.items()):
             try:
-                st = ap.state()
-                mission = ap.download_mission(MissionKind.MISSION)
-                fence = ap.download_mission(MissionKind.FENCE)
-                max_hor = float(ap.get_param("GF_MAX_HOR_DIST"))
+                st = ap.telemetry.state()
+                mission = ap.mission.download(MissionKind.MISSION)
+                fence = ap.mission.download(MissionKind.FENCE)
+                max_hor = float(ap.params.get("GF_MAX_HOR_DIST"))
             except Exception as exc:  # the view must never end a run
                 log.debug("view: autopilot %d not readable: %r", i, exc)
                 continue
