@@ -6,6 +6,7 @@ failsafes, home), and its services as MAVSDK's ``System`` composes plugins (``ha
     offboard   ``offboard.OffboardInput``       failure         ``failures.FailureInjector``
     params     ``params.Params``                manual_control  ``manual.ManualControl``
     log_files  ``flightlog.FlightLogFiles``     follow_me       ``follow.FollowTarget``
+    gripper    ``gripper.Grippers``
 
 ``step(frame)`` runs once per tick in lockstep and returns the four motor commands; the services may be
 called from any thread (the MAVLink side calls them on the wall clock). One lock (``lock``) serialises them:
@@ -34,6 +35,7 @@ from harness.autopilot.failures import FailureInjector
 from harness.autopilot.flight import FlightCore
 from harness.autopilot.flightlog import FlightLog, FlightLogFiles
 from harness.autopilot.follow import FollowTarget
+from harness.autopilot.gripper import Grippers
 from harness.autopilot.manual import ManualControl
 from harness.autopilot.mission import MissionPlans
 from harness.autopilot.offboard import OffboardInput
@@ -95,7 +97,8 @@ class Autopilot:
         self.offboard = OffboardInput(self)
         self.action = Actions(self, self.offboard, self.manual_control, self.follow_me)
         self.mission = MissionPlans(self, self.action)
-        self.telemetry = TelemetryFeed(self, self.failure)
+        self.gripper = Grippers(self)
+        self.telemetry = TelemetryFeed(self, self.failure, self.gripper)
         self.bell = TelemetryBell()
         self.log_files = FlightLogFiles(self)
         nav = self.core.nav

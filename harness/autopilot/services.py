@@ -8,7 +8,8 @@
     system.failure     failure injection (MAV_CMD_INJECT_FAILURE)       } optional: None when
     system.manual_control   MANUAL_CONTROL sticks                       } the autopilot has
     system.follow_me   FOLLOW_TARGET positions                          } no such capability,
-    system.log_files   the flight logs offered over MAVLink             } never probed for
+    system.gripper     payload grippers (MAV_CMD_DO_GRIPPER)            } never probed for
+    system.log_files   the flight logs offered over MAVLink             }
     system.bell        the stepping thread's call to the MAVLink side   }
 
 ``harness.autopilot.autopilot.Autopilot`` composes them over one flight core; a firmware dialect
@@ -117,6 +118,13 @@ class FollowMe(Protocol):
     ) -> CommandResult: ...
 
 
+class Gripper(Protocol):
+    """Payload grippers (MAVSDK ``gripper``): MAV_CMD_DO_GRIPPER, instances 1…6."""
+
+    def grab(self, instance: int = 1) -> CommandResult: ...
+    def release(self, instance: int = 1) -> CommandResult: ...
+
+
 class LogFiles(Protocol):
     """The flight logs offered over MAVLink (MAVSDK ``log_files``)."""
 
@@ -157,6 +165,8 @@ class System(Protocol):
     def manual_control(self) -> ManualInput | None: ...
     @property
     def follow_me(self) -> FollowMe | None: ...
+    @property
+    def gripper(self) -> Gripper | None: ...
     @property
     def log_files(self) -> LogFiles | None: ...
     @property

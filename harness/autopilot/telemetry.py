@@ -8,6 +8,7 @@ from collections.abc import Callable
 
 from harness.autopilot.api import MissionReached, StatusText, TickStatus, VehicleState
 from harness.autopilot.failures import FailureInjector
+from harness.autopilot.gripper import Grippers
 from harness.autopilot.snapshot import build_state
 from harness.autopilot.supervisor import Commander, arming_check
 
@@ -15,9 +16,10 @@ from harness.autopilot.supervisor import Commander, arming_check
 class TelemetryFeed:
     """What one vehicle reports. The snapshot is built on demand and kept until the next step or command."""
 
-    def __init__(self, ap: Commander, failures: FailureInjector) -> None:
+    def __init__(self, ap: Commander, failures: FailureInjector, gripper: Grippers) -> None:
         self.ap = ap
         self.failures = failures
+        self.gripper = gripper
         self.texts: deque[StatusText] = deque(maxlen=200)
         self.reached: deque[MissionReached] = deque(maxlen=1000)
         self.cache: VehicleState | None = None
@@ -35,6 +37,7 @@ class TelemetryFeed:
                     ap.failsafe,
                     preflight_ok,
                     self.failures,
+                    self.gripper.grabbed,
                 )
             return self.cache
 

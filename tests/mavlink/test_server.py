@@ -54,6 +54,15 @@ def test_streams_flow_while_paused_and_time_boot_ms_is_sim_time(gcs: Gcs, idle_r
     assert abs(alt.altitude_amsl - state.alt_amsl_m) < 1e-3 and abs(alt.altitude_relative - state.rel_alt_m) < 1e-3
 
 
+def test_do_gripper_over_udp_is_acked_and_kept(gcs: Gcs, idle_rig: Rig) -> None:
+    ack = gcs.command(mavlink2.MAV_CMD_DO_GRIPPER, 1, mavlink2.GRIPPER_ACTION_GRAB)
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED
+    assert idle_rig.ap.telemetry.state().grippers_grabbed == (1,)
+    ack = gcs.command(mavlink2.MAV_CMD_DO_GRIPPER, 1, mavlink2.GRIPPER_ACTION_RELEASE)
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED
+    assert idle_rig.ap.telemetry.state().grippers_grabbed == ()
+
+
 def test_autopilot_version_capabilities(gcs: Gcs, idle_rig: Rig) -> None:
     ack = gcs.command(512, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
     assert ack.result == M.MAV_RESULT_ACCEPTED and ack.target_system == 245 and ack.target_component == 190

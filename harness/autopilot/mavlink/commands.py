@@ -99,6 +99,7 @@ class CommandService:
             MavCmd.DO_ORBIT: self._orbit,
             MavCmd.DO_SET_HOME: self._set_home,
             CMD_INJECT_FAILURE: self._inject_failure,
+            MavCmd.DO_GRIPPER: self._gripper,
             CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
             CMD_REQUEST_MESSAGE: self._request_message,
@@ -274,6 +275,20 @@ class CommandService:
         if lat is None or lon is None or alt is None:
             return CommandOutcome(CommandResult.denied("Set home denied: latitude, longitude and altitude required"))
         return CommandOutcome(self.api.action.set_home(GeoPoint(lat, lon, alt)))
+
+    def _gripper(self, cmd: CommandIn) -> CommandOutcome:
+        """DO_GRIPPER: param 1 the instance, param 2 GRIPPER_ACTION_RELEASE (0) or _GRAB (1)."""
+        gripper = self.api.gripper
+        if gripper is None:
+            return CommandOutcome(CommandResult.unsupported("this vehicle has no gripper"))
+        instance, action = cmd.params[0], cmd.params[1]
+        if not math.isfinite(instance) or instance != int(instance):
+            return CommandOutcome(CommandResult.denied(f"gripper instance {instance} is not a whole number"))
+        if action == mavlink2.GRIPPER_ACTION_GRAB:
+            return CommandOutcome(gripper.grab(int(instance)))
+        if action == mavlink2.GRIPPER_ACTION_RELEASE:
+            return CommandOutcome(gripper.release(int(instance)))
+        return CommandOutcome(CommandResult.denied(f"gripper action {action} is neither release (0) nor grab (1)"))
 
     def _inject_failure(self, cmd: CommandIn) -> CommandOutcome:
         if int(self.api.params.get("SYS_FAILURE_EN")) != 1:

@@ -27,7 +27,7 @@ from harness.autopilot.api import (
     VehicleState,
 )
 from harness.autopilot.mavlink.ardupilot.params import CopterParams
-from harness.autopilot.services import Action, Bell, Failure, FollowMe, LogFiles, ManualInput, Offboard, System
+from harness.autopilot.services import Action, Bell, Failure, FollowMe, Gripper, LogFiles, ManualInput, Offboard, System
 
 _ARMING_DENIED = "Arming denied: "
 
@@ -140,5 +140,6 @@ class CopterSystem:
         self.failure: Failure | None = core.failure
         self.manual_control: ManualInput | None = core.manual_control
         self.follow_me: FollowMe | None = core.follow_me
+        self.gripper: Gripper | None = core.gripper
         self.log_files: LogFiles | None = core.log_files
         self.bell: Bell | None = core.bell
