@@ -422,6 +422,8 @@ class VehicleState:
     """Current horizontal speed limit (changed by DO_CHANGE_SPEED)."""
     failsafe: Failsafe = Failsafe.NONE
     """The active failsafe (``Failsafe.NONE``, '', when none)."""
+    fence_max_hor_m: float = 0.0
+    """The geofence's horizontal distance limit from home (0: none)."""
     grippers_grabbed: tuple[int, ...] = ()
     """The gripper instances (1…6) holding a payload (``harness.autopilot.gripper``)."""
 

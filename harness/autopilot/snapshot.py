@@ -93,5 +93,6 @@ def build_state(
         throttle=c.collective,
         max_speed_m_s=nav.cruise_m_s,
         failsafe=failsafe,
+        fence_max_hor_m=c.fence.max_hor_m,
         grippers_grabbed=grippers_grabbed,
     )

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.record.rrd import vehicle_color
+from harness.record.scene import vehicle_color
 from harness.record.sink import rerun_available
 from tests.view.browser import chromium, find_chromium, open_page
 
