@@ -4,7 +4,6 @@ scripts use it (``tcp:127.0.0.1:<SERIAL0>``), on a real Autopilot flown by the t
 from __future__ import annotations
 
 import math
-import socket
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -27,6 +26,7 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.tcp import take_frames
 from harness.autopilot.params import Params
 from harness.core.errors import ScenarioError
+from tests.helpers import free_tcp_port, wait_until
 from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
@@ -128,12 +128,6 @@ def test_take_frames_reassembles_a_tcp_stream_cut_anywhere(cuts: list[int], junk
 
 
 # ---------------------------------------------------------------------- over TCP
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class Client:
     """pymavlink over TCP, as an ArduPilot script connects to SITL's SERIAL0."""
 
@@ -165,7 +159,7 @@ class Client:
 def copter(gcs: Gcs) -> Iterator[tuple[Rig, Client, int]]:
     rig = Rig(gcs, speed=4.0, **core_param_defaults(Firmware.ARDUPILOT))
     rig.server.stop()
-    port = _free_tcp_port()
+    port = free_tcp_port()
     ports = PortsConfig(api_port_base=gcs.port, gcs_port=0, tcp_port_base=port)
     rig.server = MavlinkServer(rig.ap, 0, ports, firmware=Firmware.ARDUPILOT)
     rig.start()
@@ -353,7 +347,4 @@ def test_tcp_clients_come_and_go(copter: tuple[Rig, Client, int]) -> None:
         other.close()
     assert c.recv("HEARTBEAT").autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA
     tcp = next(lk for lk in rig.server.links if lk.name == "tcp")
-    end = time.monotonic() + 3.0
-    while len(tcp.destinations(0)) != 1 and time.monotonic() < end:
-        time.sleep(0.05)
-    assert len(tcp.destinations(0)) == 1  # only the first client is left
+    wait_until(lambda: len(tcp.destinations(0)) == 1, 3.0, "only the first client left", poll_s=0.05)
