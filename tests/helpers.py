@@ -1,7 +1,7 @@
 """What many tests need, in one place: waiting for a condition on the wall clock, a free TCP port.
 
 (Process-level rigs stay next to the tests that use them: ``tests/channel/rig.py``, ``tests/autopilot/rig.py``,
-``tests/mavlink/conftest.py``, ``tests/simclock/conftest.py``.)
+``tests/autopilot/mavlink/conftest.py``, ``tests/simclock/conftest.py``.)
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ print(child.pid, flush=True)
 if sys.argv[5] == "wait":
     time.sleep(60)
 """
-SRC = str(Path(__file__).resolve().parents[1])
+SRC = str(Path(__file__).resolve().parents[2])
 
 
 def _alive(pid: int) -> bool:

@@ -15,7 +15,7 @@ from harness.core.geo import WGS84_A_M, flat_point
 from harness.record.links import ratio_color
 from harness.record.sample import VehicleSample
 from harness.record.scene import to_ned
-from tests.view.test_rrd import read_rrd
+from tests.record.test_rrd import read_rrd
 
 pytest.importorskip("rerun", reason="the view extra is not installed (pip install 'uav-harness[view]')")
 

@@ -26,8 +26,8 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.tcp import take_frames
 from harness.autopilot.params import Params
 from harness.core.errors import ScenarioError
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 from tests.helpers import free_tcp_port, wait_until
-from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 

@@ -9,7 +9,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import FlightMode, LandedState
 from harness.core.clock import real_monotonic_ns
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 ARMED = M.MAV_MODE_FLAG_SAFETY_ARMED

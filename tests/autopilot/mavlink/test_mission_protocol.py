@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import MissionKind
 from harness.core.clock import real_monotonic_ns
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 LAT0, LON0 = 47.397742, 8.545594

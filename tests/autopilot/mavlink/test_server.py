@@ -16,7 +16,7 @@ from harness.autopilot.mavlink.telemetry import SENSOR_GPS, SENSOR_GYRO, SENSOR_
 from harness.autopilot.mavlink.transport import DATAGRAM_MAX, GREET_NS, pack_frames
 from harness.autopilot.mavlink.version import CAPABILITIES
 from harness.core.endpoints import LISTEN_HELLO_WALL
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 

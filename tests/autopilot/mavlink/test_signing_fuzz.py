@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from harness.autopilot.mavlink import SigningConfig
 from harness.autopilot.mavlink.codec import Codec, FrameStatus
 from harness.core.clock import real_time_ns
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 KEY = hashlib.sha256(b"uav-harness test key").digest()
