@@ -1,8 +1,9 @@
 """The autopilot's ``offboard`` service: position / velocity / acceleration setpoints and attitude targets.
 
 The last kind of input received is the one OFFBOARD flies; a setpoint is handed to the navigator at once while
-OFFBOARD is active, else when the mode is entered (``apply``). The age of the last input is kept on the wall
-clock, as PX4's ``COM_OF_LOSS_T`` runs while MAVSDK streams at wall rate.
+OFFBOARD is active, else when the mode is entered (``apply``). The age of the last input is kept in sim time:
+PX4 in lockstep SITL judges ``COM_OF_LOSS_T`` on its own (sim) clock, and a mission's setpoints and MAVSDK's
+resends follow sim time (on the wall clock a loaded machine's gap between two phases read as a lost stream).
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ class OffboardInput:
         self.kind = OffboardKind.NONE
         self.setpoint: OffboardSetpoint | None = None
         self.attitude: AttitudeTarget | None = None
-        self._wall_ns = -(10**18)
+        self._t_ns = -(10**18)
+        """Sim time of the last offboard input."""
 
     # ------------------------------------------------------------------ commands (any thread)
     def set_setpoint(self, sp: OffboardSetpoint) -> CommandResult:
@@ -43,7 +45,7 @@ class OffboardInput:
             return CommandResult.denied("offboard setpoint with NaN or infinite values")
         ap = self.ap
         with ap.lock:
-            self._wall_ns = ap.wall.now_ns()
+            self._t_ns = ap.core.t_ns
             self.setpoint, self.kind = sp, OffboardKind.SETPOINT
             if ap.core.mode == FlightMode.OFFBOARD:
                 self.apply()
@@ -57,7 +59,7 @@ class OffboardInput:
             return CommandResult.denied("attitude target quaternion is not normalised")
         ap = self.ap
         with ap.lock:
-            self._wall_ns = ap.wall.now_ns()
+            self._t_ns = ap.core.t_ns
             self.attitude, self.kind = target, OffboardKind.ATTITUDE
             if ap.core.mode == FlightMode.OFFBOARD:
                 self.apply()
@@ -73,7 +75,8 @@ class OffboardInput:
             nav.set_offboard(self.setpoint)
 
     def age_s(self) -> float:
-        return (self.ap.wall.now_ns() - self._wall_ns) * 1e-9
+        """Sim seconds since the last offboard input."""
+        return (self.ap.core.t_ns - self._t_ns) * 1e-9
 
     def climbing(self) -> bool:
         c = self.ap.core

@@ -140,7 +140,7 @@ PARAM_DEFS: tuple[ParamDef, ...] = (
     _f("COM_DISARM_LAND", 2.0, -1.0, 20.0, "s", "Disarm this long after touchdown"),
     _f("COM_DISARM_PRFLT", 10.0, -1.0, 20.0, "s", "Disarm when armed and not taken off"),
     _i("COM_OBL_RC_ACT", 5, 0, 7, "Offboard loss action: 0 position, 3 return, 4 land, 5 hold"),
-    _f("COM_OF_LOSS_T", 0.5, 0.0, 60.0, "s", "Offboard setpoint loss timeout (wall clock)"),
+    _f("COM_OF_LOSS_T", 0.5, 0.0, 60.0, "s", "Offboard setpoint loss timeout (sim time)"),
     _i("COM_LOW_BAT_ACT", 3, 0, 3, "Low battery action: 0 warn, 2 land, 3 return then land at critical"),
     _i("COM_RC_IN_MODE", 1, 0, 4, "Manual input: 1 MAVLink MANUAL_CONTROL (joystick), 4 ignored (no RC)"),
     _f("COM_RC_LOSS_T", 0.5, 0.0, 35.0, "s", "RC loss timeout (sim time since the last MANUAL_CONTROL)"),

@@ -22,7 +22,7 @@ class OffboardStatus(Protocol):
     """What the supervisor reads of the offboard service."""
 
     def age_s(self) -> float:
-        """Wall-clock seconds since the last offboard setpoint."""
+        """Sim seconds since the last offboard setpoint."""
         ...
 
     def climbing(self) -> bool:

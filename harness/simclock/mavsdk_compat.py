@@ -8,8 +8,9 @@
   ``udp://:14540``). The runner points them at the vehicle's own port instead (``udpout://127.0.0.1:P``,
   :mod:`harness.core.endpoints`), so one unmodified script flies every vehicle of a swarm, and no
   other run's script can reach this run's vehicles.
-- The gRPC API starts a ``mavsdk_server`` per ``System()`` on gRPC port 50051 by default; with several
-  missions on one machine those collide, so the default becomes a free port.
+- The gRPC API runs on the native MAVSDK core in the mission process (:mod:`.mavsdk_grpc_native`): no
+  ``mavsdk_server``, no gRPC. ``HARNESS_MAVSDK_GRPC=server`` keeps MAVSDK-Python's own way, a ``mavsdk_server``
+  per ``System()`` (on a free gRPC port: several missions on one machine would collide on 50051).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import importlib
 import importlib.abc
 import importlib.machinery
 import logging
+import os
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -70,9 +72,26 @@ class _AliasFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         pass
 
 
-def _patch_grpc(ep: VehicleEndpoints | None) -> None:
-    from harness.simclock.installed import current
+GRPC_BACKEND_ENV = "HARNESS_MAVSDK_GRPC"
+"""``server``: run gRPC-API scripts on ``mavsdk_server`` as MAVSDK-Python does (the comparison path); anything
+else or unset: on the native core in the mission process (:mod:`harness.simclock.mavsdk_grpc_native`)."""
 
+
+def grpc_backend() -> str:
+    """``native`` (the default) or ``server`` (``HARNESS_MAVSDK_GRPC=server``)."""
+    value = os.environ.get(GRPC_BACKEND_ENV, "").strip().lower()
+    if value in ("", "native"):
+        return "native"
+    if value == "server":
+        return "server"
+    from harness.core.errors import ScenarioError
+
+    raise ScenarioError(f"{GRPC_BACKEND_ENV}={value!r}: expected 'native' (default) or 'server'")
+
+
+def _patch_grpc_server(ep: VehicleEndpoints | None) -> None:
+    """The gRPC API on ``mavsdk_server`` (``HARNESS_MAVSDK_GRPC=server``): each ``System()`` on a free gRPC
+    port (several missions on one machine would collide on 50051), its URL pointed at the vehicle."""
     system_mod = importlib.import_module("mavsdk_grpc.system")
     System = system_mod.System
     if getattr(System, "_harness_patched", False):
@@ -88,77 +107,49 @@ def _patch_grpc(ep: VehicleEndpoints | None) -> None:
         orig_init(self, mavsdk_server_address, port, *a, **kw)
 
     async def connect(self: Any, system_address: str | None = None) -> Any:
-        url = system_address or "udpin://0.0.0.0:14540"
-        url = _for_vehicle(url, ep)
-        log.info("mavsdk (gRPC API): connecting to %s", url)
-        rt = current()
-        if rt is None or not rt._tracked():
-            return await orig_connect(self, system_address=url)
-        rt.hold()  # starting mavsdk_server and discovering the vehicle take no sim time (as a request does)
-        try:
-            return await orig_connect(self, system_address=url)
-        finally:
-            rt.unhold()
+        url = _for_vehicle(system_address or "udpin://0.0.0.0:14540", ep)
+        log.info("mavsdk (gRPC API, mavsdk_server): connecting to %s", url)
+        return await orig_connect(self, system_address=url)
 
     System.__init__ = __init__
     System.connect = connect
     System._harness_patched = True
-    _hold_phase_during_requests()
 
 
-STREAM_SETUP_HOLD_NS = 20_000_000
-"""A new telemetry stream (a server-streaming gRPC call) keeps phase 0 open this long (wall clock), so that
-mavsdk_server has registered the subscription before the sim moves on. It gives no signal when it has;
-without the hold, a loaded machine let it register after the next message of a slow stream, and the script
-waited for the one after (HOME_POSITION at 0.5 Hz: ``mission_rtl.py`` lifted off 2.00 s later in one run of
-three)."""
+def on_sim_clock() -> bool:
+    """Put MAVSDK's native core (``libcmavsdk.so``) on this mission's sim clock (``native.attach``).
 
-
-def _hold_phase_during_requests() -> None:
-    """A MAVSDK request (arm, takeoff, set a setpoint, upload a mission: every unary gRPC call to
-    mavsdk_server) keeps the script's phase 0 open until its answer is back, so it takes no sim time.
-
-    mavsdk_server answers on the wall clock once the autopilot has acknowledged (the autopilot's MAVLink
-    side answers within milliseconds of wall time, whatever the sim does). Without the hold, the sim would
-    run on while the request travels — at x50 a 20 ms round trip is a whole second of sim time, so an
-    offboard stop or a mode change would take effect at a place that depends on the machine's speed.
-    Streams (telemetry subscriptions) wait for the sim; only their start holds the phase, for
-    ``STREAM_SETUP_HOLD_NS`` of wall time.
-    """
-    from grpc.aio import _channel
-
+    True when its threads now follow sim time; False without a runtime (outside a run), without a C compiler,
+    or with ``HARNESS_MAVSDK_CLOCK=wall`` (the old behaviour, to compare against)."""
+    from harness.simclock import native
     from harness.simclock.installed import current
 
-    callable_cls: Any = _channel.UnaryUnaryMultiCallable
-    if getattr(callable_cls, "_harness_holds", False):
-        return
-    orig_call = callable_cls.__call__
+    rt = current()
+    if rt is None or os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") == "wall":
+        return False
+    if rt.native is not None:
+        return True
+    importlib.import_module("mavsdk.cmavsdk_loader")  # loads libcmavsdk.so
+    trace_dir = os.environ.get("HARNESS_SIMTIME_TRACE_DIR")
+    if trace_dir:  # every release of MAVSDK's threads, per vehicle: for comparing two runs (docs/simclock.md)
+        os.environ["HARNESS_SIMTIME_TRACE"] = os.path.join(trace_dir, f"simtime-{rt.vehicle}.trace")
+    clock = native.attach("libcmavsdk", rt.epoch_ns, rt.now_ns())
+    if clock is None:
+        return False
+    rt.native = clock
+    return True
 
-    def __call__(self: Any, *a: Any, **kw: Any) -> Any:
-        call = orig_call(self, *a, **kw)
-        rt = current()
-        if rt is not None and rt._tracked():
-            rt.hold()
-            call.add_done_callback(lambda _call: rt.unhold())
-        return call
 
-    callable_cls.__call__ = __call__
-    callable_cls._harness_holds = True
+def _shim_unavailable() -> bool:
+    """In a run, the sim-clock shim for MAVSDK's core cannot be built here (no C compiler)."""
+    from harness.simclock import native
+    from harness.simclock.installed import current
 
-    stream_cls: Any = _channel.UnaryStreamMultiCallable
-    orig_stream = stream_cls.__call__
-
-    def subscribe(self: Any, *a: Any, **kw: Any) -> Any:
-        call = orig_stream(self, *a, **kw)
-        rt = current()
-        if rt is not None and rt._tracked():
-            rt.hold_for(STREAM_SETUP_HOLD_NS)
-        return call
-
-    stream_cls.__call__ = subscribe
+    return current() is not None and os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") != "wall" and native.build() is None
 
 
 def _patch_native(ep: VehicleEndpoints | None) -> None:
+    on_sim_clock()
     for modname in ("mavsdk.mavsdk", "mavsdk.asyncio.mavsdk"):
         try:
             mod = importlib.import_module(modname)
@@ -208,11 +199,23 @@ def install(script: Path, ep: VehicleEndpoints | None, api: MavsdkApi | None = N
                 f"{script} uses the old gRPC MAVSDK API (from mavsdk import System … await drone.connect()); "
                 "install it with: pip install mavsdk-grpc"
             ) from None
+        backend = grpc_backend()
+        if backend == "native":
+            from harness.simclock import mavsdk_grpc_native
+
+            mavsdk_grpc_native.load_native()  # before ``mavsdk`` becomes mavsdk_grpc for the script
+            if not on_sim_clock() and _shim_unavailable():
+                backend = "server"  # no C compiler: today's path, mavsdk_server with its holds (said once)
         if api == MavsdkApi.GRPC:
             for name in [m for m in sys.modules if m == "mavsdk" or m.startswith("mavsdk.")]:
                 del sys.modules[name]
             sys.meta_path.insert(0, _AliasFinder())
-        _patch_grpc(ep)
+        if backend == "server":
+            _patch_grpc_server(ep)
+        else:
+            from harness.simclock import mavsdk_grpc_native
+
+            mavsdk_grpc_native.install(lambda url: _for_vehicle(url, ep))
         return MavsdkApi.GRPC
     if api == MavsdkApi.NATIVE:
         _patch_native(ep)
@@ -224,6 +227,9 @@ def _for_vehicle(url: str, ep: VehicleEndpoints | None) -> str:
     """``url`` as MAVSDK is to use it in a run: listening on a port announced to the mission's vehicle."""
     if ep is None:
         return url
+    from harness.simclock.installed import current
     from harness.simclock.simsocket import announce_listen_port
 
-    return mavsdk_url(url, ep, lambda: announce_listen_port(ep))
+    rt = current()
+    sim = rt is not None and rt.native is not None
+    return mavsdk_url(url, ep, lambda: announce_listen_port(ep, sim_clock=sim))

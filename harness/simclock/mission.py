@@ -11,6 +11,7 @@ behind (``mavsdk-grpc`` does). When the run ends first, the script is stopped wi
 
 from __future__ import annotations
 
+import _thread
 import logging
 import os
 import runpy
@@ -55,6 +56,16 @@ class MissionHooks:
     """End the process with this exit code now, whatever threads the script left (see :func:`kill_descendants`)."""
 
 
+BYE_WAIT_S = 30.0
+"""How long (wall clock) the main thread waits for the clock thread to end the script's last phase with BYE
+before it says BYE itself (the run is over or its channel gone)."""
+
+
+def _release(lock: _thread.LockType) -> None:
+    if lock.locked():
+        lock.release()
+
+
 class _ClockThread(threading.Thread):
     def __init__(self, client: ChannelClient, rt: SimRuntime, hooks: MissionHooks) -> None:
         super().__init__(name=f"{INFRA_THREAD_PREFIX}clock", daemon=True)
@@ -64,6 +75,12 @@ class _ClockThread(threading.Thread):
         self.end_reason: str | None = None
         self.seq = 0
         self.script_done = False
+        self.exit_code: int | None = None
+        """Set by the main thread when the script has ended: the phase it ended in answers with BYE."""
+        self.said_bye = _thread.allocate_lock()
+        """Released once the clock thread has said BYE (a raw lock: ``threading`` waits are sim-time waits, and
+        no phase comes after the last one to release them)."""
+        self.said_bye.acquire()
 
     def run(self) -> None:
         try:
@@ -76,8 +93,14 @@ class _ClockThread(threading.Thread):
                             pk = p.Packet(msg.t_ns, self.rt.vehicle, o.dst, o.port, self.seq, o.payload)
                             self.seq += 1
                             out.append(p.Enqueue(pk))
-                        out.append(p.EndTick0(msg.t_ns, idle_until, deliver_wakes))
+                        code = self.exit_code
+                        if code is None:
+                            out.append(p.EndTick0(msg.t_ns, idle_until, deliver_wakes))
                         self.client.send_many(out)
+                        if code is not None:  # the phase the script ended in: its answer is BYE, at any pace
+                            self.client.close(f"script exited with {code}", code)
+                            _release(self.said_bye)
+                            return
                     elif isinstance(msg, p.Deliver):
                         self.rt.deliver([_delivery(msg)])
                     elif isinstance(msg, p.DeliverMany):
@@ -96,7 +119,8 @@ class _ClockThread(threading.Thread):
 
     def _end(self, reason: str) -> None:
         if self.script_done:
-            return  # the script ended first; the main thread is reporting and exiting
+            _release(self.said_bye)  # the script ended first; the main thread says BYE (if it can) and exits
+            return
         self.end_reason = reason
         self.rt.close()
         self.hooks.report(f"{reason}; stopping the script")
@@ -206,10 +230,12 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     if code == 0:
         for t in _script_threads():  # a normal end waits for the script's own threads, as Python does
             t.join()
-    rt.thread_done()
     clock.script_done = True
-    try:
-        client.close(f"script exited with {code}", code)
-    except Exception:
-        pass
+    clock.exit_code = code
+    rt.thread_done()  # the phase ends once the library threads are idle too, and answers BYE (the clock thread)
+    if not clock.said_bye.acquire(True, BYE_WAIT_S):
+        try:
+            client.close(f"script exited with {code}", code)
+        except Exception:
+            pass
     return code

@@ -8,6 +8,7 @@ puts every original back. Installing twice is a no-op; so is uninstalling when n
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures.thread as _futures_thread
 import datetime as _dt
 import queue as _queue
 import selectors
@@ -45,16 +46,22 @@ def install(rt: SimRuntime) -> None:
         uninstall()
     INSTALLED.runtime = rt
 
+    read = rt.clock_read  # a thread that keeps reading the clock without waiting waits for time to pass
+
     def sim_time() -> float:
+        read()
         return rt.unix_ns() / NS_PER_S
 
     def sim_time_ns() -> int:
+        read()
         return rt.unix_ns()
 
     def sim_mono() -> float:
+        read()
         return rt.now_ns() / NS_PER_S
 
     def sim_mono_ns() -> int:
+        read()
         return rt.now_ns()
 
     def sim_sleep(seconds: float) -> None:
@@ -86,6 +93,7 @@ def install(rt: SimRuntime) -> None:
 
     _set(threading.Condition, "wait", _make_condition_wait(rt))
     _set(threading.Condition, "notify", _make_condition_notify(rt))
+    _set(_futures_thread.ThreadPoolExecutor, "__init__", _make_executor_init())
 
     for (owner, name), value in iowait.patches(rt).items():
         _set(owner, name, value)
@@ -113,6 +121,24 @@ def uninstall() -> None:
 def patched_names() -> Mapping[str, str]:
     """What is patched now (for tests and ``docs/simclock.md``)."""
     return {f"{getattr(o, '__name__', o)}.{n}": repr(v) for (o, n), v in _originals.items()}
+
+
+# --- thread pools --------------------------------------------------------------------------------
+
+
+def _make_executor_init() -> Callable[..., None]:
+    """Thread-pool workers wait for work on a ``queue.Queue``, whose waits are sim-time waits: a worker waiting
+    for work is idle, and ``submit`` marks it busy as it hands the work over (``Condition.notify``), so the work
+    runs in this phase. The pool's own ``SimpleQueue`` is C: a worker woken from it ran whenever the machine
+    scheduled it, maybe after phase 0 had ended (a MAVSDK request in ``run_in_executor`` went out a phase late
+    in one run of six)."""
+    orig = _futures_thread.ThreadPoolExecutor.__init__
+
+    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+        orig(self, *args, **kwargs)
+        self._work_queue = _queue.Queue()
+
+    return __init__
 
 
 # --- datetime ------------------------------------------------------------------------------------
@@ -241,13 +267,19 @@ class SimSelector(selectors.BaseSelector):
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
         rt = self._rt
-        if (timeout is not None and timeout <= 0) or not rt._tracked():
+        if not rt._tracked():
+            return self._inner.select(timeout)
+        if timeout is not None and timeout <= 0:
+            rt.clock_read()  # a loop that is never idle (``await asyncio.sleep(0)`` forever) sees time pass
             return self._inner.select(timeout)
         events = self._inner.select(0)
         if events:
             return events
         deadline = None if timeout is None else rt.now_ns() + max(1, round(timeout * NS_PER_S))
-        w = rt.new_waiter(deadline_ns=deadline, wake=self.wake)
+        # the epoll descriptor itself: the clock thread sees the loop's I/O (and its self-pipe, written by a
+        # MAVSDK thread's call_soon_threadsafe) before it decides that phase 0 is over
+        fileno = getattr(self._inner, "fileno", None)
+        w = rt.new_waiter(deadline_ns=deadline, wake=self.wake, rfds=(fileno(),) if fileno is not None else ())
         events = self._inner.select(None)
         if rt.loop_woken(w):
             return events

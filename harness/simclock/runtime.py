@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from types import FrameType
 
 from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.simclock.native import NO_DEADLINE as NATIVE_NO_DEADLINE
+from harness.simclock.native import NativeClock
 from harness.wire.protocol import EVERY_PHASE, NO_DEADLINE
 
 log = logging.getLogger(__name__)
@@ -44,9 +46,12 @@ INFRA_THREAD_PREFIX = "harness-"
 """Threads whose name starts with this belong to the harness, not to the script."""
 
 _IDLE_FRAMES: set[tuple[str, str]] = {
-    ("thread.py", "_worker"),  # concurrent.futures worker waiting on its work queue
-    ("threading.py", "_wait_for_tstate_lock"),  # Thread.join
+    ("threading.py", "_wait_for_tstate_lock"),  # Thread.join: what ends it is the joined thread's end
 }
+ZENO_READS = 1000
+"""A script thread that reads the clock this many times in one phase without waiting waits for the next phase
+(``clock_read``): a loop that polls ``time.time()`` without sleeping sees time pass, as on a real vehicle,
+instead of stopping the simulation."""
 
 
 @dataclass(eq=False)
@@ -125,6 +130,8 @@ class SimRuntime:
         clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
         self._wake_requested = False
         self._holds = 0
+        self._settling = False
+        self._reads: dict[int, int] = {}
         self._held_until_wall_ns = 0
         self.mavlink_fds: set[int] = set()
         """Descriptors of the script's sockets to its vehicle (``simsocket``)."""
@@ -133,6 +140,9 @@ class SimRuntime:
         self._mavlink_synced = 0
         self.settle_mavlink: Callable[[], bool] | None = None
         """Waits (wall clock) until the vehicle has handled everything sent to it; False: it did not answer."""
+        self.native: NativeClock | None = None
+        """The C threads of a library on the sim clock (MAVSDK's core, ``native.attach``): they take part in the
+        idle decision, and what they send the vehicle is settled like the script's own MAVLink."""
 
     # -- reading the clock (any thread) --------------------------------------------------------
 
@@ -162,36 +172,40 @@ class SimRuntime:
                 raise ValueError(f"sim time went backwards: {t_ns} < {self._now_ns}")
             self._now_ns = t_ns
             self._started = True
-            self._gate_open = True
-            gated, self._gate_waiters = self._gate_waiters, []
-            for w in gated:
-                self._release_locked(w)
-            self.stats.waits_released += len(gated)
+            self._reads.clear()
+            self._open_gate_locked()
+        native = self.native
+        if native is not None:
+            native.begin(t_ns)
         # A thread whose socket received data before this phase may not have run yet to notice (a loaded
         # machine schedules it late): its wait is still counted idle, so look at the sockets themselves.
         self._release_ready_io()
         report_at = start + _REPORT_AFTER_NS
         while True:
+            generation = native.generation() if native is not None else 0
+            settle = False
             with self._mu:
-                idle = self._all_idle_locked()
-                if idle and (self.mavlink_sent == self._mavlink_synced or self.settle_mavlink is None):
-                    due = [
-                        w for w in self._timed if not w.released and w.deadline_ns is not None and w.deadline_ns <= t_ns
-                    ]
-                    if not due:  # the decision "idle" and closing the gate are one step under the lock
-                        self._gate_open = False
+                if self._all_idle_locked():
+                    if self._sent_locked() != self._mavlink_synced and self.settle_mavlink is not None:
+                        settle = True
+                    elif native is None or native.try_close():
+                        # The library's threads wait with nothing ready, and its gate is shut: what they handed
+                        # the script before they went idle (a callback's call_soon_threadsafe) is in a socket now.
+                        if self._release_ready_io_locked() or self._release_due_locked(t_ns):
+                            if native is not None:
+                                native.reopen()
+                            continue
+                        self._gate_open = False  # the decision "idle" and closing the gate are one step
                         self._wake_requested = False
                         lookahead = self._lookahead_locked()
                         break
-                    for w in due:  # second round: the timed waits, once the I/O of this tick is handled
-                        w.timed_out = True
-                        self._release_locked(w)
-                    self.stats.waits_released += len(due)
-                    continue
-            if idle:
+            if settle:
                 self._settle()
                 continue
-            self._signal.acquire(True, idle_poll_s)
+            if native is not None:
+                native.wait_change(generation, round(idle_poll_s * NS_PER_S))
+            else:
+                self._signal.acquire(True, idle_poll_s)
             if now_wall() > report_at:
                 report_at += _REPORT_AFTER_NS
                 log.warning(
@@ -205,19 +219,54 @@ class SimRuntime:
         self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
         return lookahead
 
+    def _sent_locked(self) -> int:
+        """MAVLink sent to the vehicle so far: by the script's sockets and by the library on the sim clock."""
+        return self.mavlink_sent + (self.native.sent() if self.native is not None else 0)
+
+    def _release_due_locked(self, t_ns: int) -> bool:
+        """Second round: the timed waits that fell due, once the I/O of this tick is handled."""
+        due = [w for w in self._timed if not w.released and w.deadline_ns is not None and w.deadline_ns <= t_ns]
+        for w in due:
+            w.timed_out = True
+            self._release_locked(w)
+        self.stats.waits_released += len(due)
+        return bool(due)
+
     def _settle(self) -> None:
         """The script is idle but sent its vehicle MAVLink in this phase: wait (wall clock) until the vehicle
         has handled it (``settle_mavlink``), then let every thread whose socket now holds an answer run.
 
         So a command and its answer take no sim time, and a command takes effect before the next tick,
         whatever the machine's pace (a MAVSDK request is held the same way, in ``mavsdk_compat``)."""
-        sent = self.mavlink_sent
-        settle = self.settle_mavlink
-        if settle is not None and not settle():
-            log.warning("the vehicle did not confirm the script's MAVLink in time; going on without its answer")
+        native = self.native
         with self._mu:
-            self._mavlink_synced = sent
+            sent = self._sent_locked()
+            # Nothing runs while the vehicle answers: what it sends before its echo is read after it, so one round
+            # (the script's messages up to this settle, and their answers) never runs into the next, at any pace.
+            self._gate_open = False
+            self._settling = True
+            if native is not None:
+                native.pause()
+        settle = self.settle_mavlink
+        try:
+            if settle is not None and not settle():
+                log.warning("the vehicle did not confirm the script's MAVLink in time; going on without its answer")
+        finally:
+            with self._mu:
+                self._mavlink_synced = sent
+                self._settling = False
+                self._open_gate_locked()
+                if native is not None:
+                    native.reopen()
         self._release_ready_io()
+
+    def _open_gate_locked(self) -> None:
+        """Script threads may run again: those that were woken while the gate was shut run now."""
+        self._gate_open = True
+        gated, self._gate_waiters = self._gate_waiters, []
+        for w in gated:
+            self._release_locked(w)
+        self.stats.waits_released += len(gated)
 
     def _release_ready_io(self) -> None:
         """Let every thread waiting on a descriptor that is ready now run (clock thread, phase 0).
@@ -225,22 +274,29 @@ class SimRuntime:
         Whether a thread runs in this phase then depends on what is in its sockets, not on when the machine
         happened to schedule it after the data arrived."""
         with self._mu:
-            waiters = [w for w in self._idle.values() if (w.rfds or w.wfds) and not w.released]
-        if not waiters:
-            return
-        for w in waiters:
+            self._release_ready_io_locked()
+
+    def _release_ready_io_locked(self) -> bool:
+        released = False
+        for w in [w for w in self._idle.values() if (w.rfds or w.wfds) and not w.released]:
             try:
                 r, wr, _ = _real_select(w.rfds, w.wfds, [], 0)
             except (OSError, ValueError):
                 r = wr = [0]
             if r or wr:
-                with self._mu:
-                    self._release_locked(w)
+                self._release_locked(w)
+                released = True
+        return released
 
     def _lookahead_locked(self) -> tuple[int, bool]:
+        native = self.native
         if self._gate_waiters or any(w.every_phase for w in self._idle.values()):
             return EVERY_PHASE, True
+        if native is not None and native.waits_for_io():  # the library reads its vehicle's MAVLink: every phase
+            return EVERY_PHASE, True
         deadlines = [w.deadline_ns for w in self._timed if not w.released and w.deadline_ns is not None]
+        if native is not None and (d := native.next_deadline_ns()) != NATIVE_NO_DEADLINE:
+            deadlines.append(d)
         return min(deadlines, default=NO_DEADLINE), bool(self._inbox_waiters or self._inbox_callbacks)
 
     def busy_threads(self) -> list[str]:
@@ -250,7 +306,8 @@ class SimRuntime:
             left_ns = self._held_until_wall_ns - self.wall.now_ns()
             if left_ns > 0:
                 held.append(f"held {left_ns / 1e6:.1f} ms more for mavsdk_server to register a stream")
-            return held + [f"{t.name} at {where}" for t, where in self._busy_locked()]
+            native = [f"MAVSDK's threads: {self.native.describe()}"] if self.native and self.native.busy() else []
+            return held + native + [f"{t.name} at {where}" for t, where in self._busy_locked()]
 
     def take_outbox(self) -> list[_Outgoing]:
         with self._mu:
@@ -286,6 +343,8 @@ class SimRuntime:
 
     def close(self) -> None:
         """The run is over: release every wait so nothing blocks forever."""
+        if self.native is not None:
+            self.native.close()
         with self._mu:
             self.closed = True
             self._gate_open = True
@@ -295,6 +354,20 @@ class SimRuntime:
                     self._release_locked(w)
 
     # -- script threads ------------------------------------------------------------------------
+
+    def clock_read(self) -> None:
+        """A script thread read the clock. The ``ZENO_READS``-th read in one phase without a wait in between
+        waits until the next phase (a busy-wait on ``time.time()`` would otherwise hold phase 0 forever)."""
+        if not self._started:
+            return
+        ident = _thread.get_ident()
+        n = self._reads.get(ident, 0) + 1
+        if n < ZENO_READS:
+            self._reads[ident] = n
+            return
+        self._reads.pop(ident, None)
+        if self._tracked():
+            self.sleep_ns(1)
 
     def sleep_ns(self, ns: int) -> None:
         """Block the calling thread for ``ns`` of sim time (at least until a later phase 0)."""
@@ -325,6 +398,7 @@ class SimRuntime:
             lock = _thread.allocate_lock()
             lock.acquire()
         w = Waiter(_thread.get_ident(), lock, deadline_ns, wake, rfds=rfds, wfds=wfds, every_phase=every_phase)
+        self._reads.pop(w.ident, None)
         with self._mu:
             if self.closed:
                 w.released = w.timed_out = True
@@ -438,6 +512,8 @@ class SimRuntime:
         return self._started and not threading.current_thread().name.startswith(INFRA_THREAD_PREFIX)
 
     def _poke(self) -> None:
+        if self.native is not None:
+            self.native.poke()
         if self._signal.locked():
             try:
                 self._signal.release()
@@ -451,7 +527,7 @@ class SimRuntime:
         if not self._gate_open:
             if w not in self._gate_waiters:
                 self._gate_waiters.append(w)
-                if wake:
+                if wake and not self._settling:  # within a phase: it runs when the settle is over
                     self._want_phase_locked()
             return
         w.released = True
@@ -517,6 +593,8 @@ class SimRuntime:
     def _all_idle_locked(self) -> bool:
         if self._held_until_wall_ns and self.wall.now_ns() < self._held_until_wall_ns:
             return False
+        if self.native is not None and self.native.busy():
+            return False
         return not self._holds and not self._busy_locked(first_only=True)
 
     def _busy_locked(self, first_only: bool = False) -> list[tuple[threading.Thread, str]]:
@@ -533,6 +611,8 @@ class SimRuntime:
                 continue
             if ident in self._done_threads or ident in self._idle:
                 continue
+            if self.native is not None and self.native.thread_waiting(ident):
+                continue  # waits inside the library on the sim clock (a blocking MAVSDK call in an executor)
             if not self._is_script_thread(t):
                 continue
             if frames is None:

@@ -121,6 +121,7 @@ class SimSocket(_original_socket):
         rt = INSTALLED.sockets
         if self._mavlink and rt is not None:
             rt.mavlink_sent += 1
+            rt.clock_read()  # a thread that only ever sends (no wait, no answer read) sees time pass
 
     def close(self) -> None:
         rt = INSTALLED.sockets
@@ -277,14 +278,22 @@ def uninstall() -> None:
     _socket.socket = _original_socket  # type: ignore[misc]
 
 
-def announce_listen_port(ep: VehicleEndpoints) -> int:
+def announce_listen_port(ep: VehicleEndpoints, sim_clock: bool = False) -> int:
     """A loopback UDP port for a MAVSDK connection to listen on (``endpoints.mavsdk_url``), announced to the
-    vehicle (``LISTEN_HELLO_WALL``). Reserved by a socket without ``SO_REUSEADDR``, which no port-0 bind can be
-    given while it holds it, and freed just before MAVSDK binds it."""
+    vehicle. Reserved by a socket without ``SO_REUSEADDR``, which no port-0 bind can be given while it holds
+    it, and freed just before MAVSDK binds it.
+
+    ``sim_clock``: MAVSDK runs on the sim clock (``native.attach``), so the port is a peer that lives on sim
+    time (``LISTEN_HELLO``, settled like the script's MAVLink: MAVSDK binds it in this phase and the vehicle
+    sends there from the next tick on). Otherwise the vehicle greets it on the wall clock until it answers
+    (``LISTEN_HELLO_WALL``)."""
     sock = _original_socket(_socket.AF_INET, _socket.SOCK_DGRAM)
     try:
         sock.bind(("127.0.0.1", 0))
-        sock.sendto(LISTEN_HELLO_WALL, (ep.host, ep.udp_port))
+        sock.sendto(LISTEN_HELLO if sim_clock else LISTEN_HELLO_WALL, (ep.host, ep.udp_port))
+        rt = INSTALLED.sockets
+        if sim_clock and rt is not None:
+            rt.mavlink_sent += 1
         return int(sock.getsockname()[1])
     finally:
         sock.close()

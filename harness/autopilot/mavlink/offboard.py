@@ -4,8 +4,8 @@ to the autopilot API.
 ``type_mask`` bits say which fields to *ignore*; an ignored vector or yaw becomes ``None`` (unset). A vector
 must be used or ignored as a whole (x, y and z together). Frames: LOCAL_NED (1)
 and BODY_NED (8, MAVSDK's forward-right-down velocity); others are refused. The autopilot itself stamps
-each setpoint with the wall time, denies OFFBOARD without a recent one and falls back (COM_OBL_RC_ACT)
-when they stop for COM_OF_LOSS_T seconds of wall time.
+each setpoint with its sim time, denies OFFBOARD without a recent one and falls back (COM_OBL_RC_ACT)
+when they stop for COM_OF_LOSS_T seconds of sim time, as PX4 in lockstep SITL does.
 """
 
 from __future__ import annotations

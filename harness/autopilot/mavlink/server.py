@@ -101,6 +101,14 @@ class MavlinkCounters:
     commands_by_id: dict[int, dict[str, int]] = field(default_factory=dict)
 
 
+DATAGRAMS_PER_LOOP = 8
+"""Datagrams one autopilot loop (a tick, 4 ms at 250 Hz) handles at most; later ones wait for the next loop, as a
+flight stack's MAVLink receiver handles what came in once per loop. A client that answers every answer at once
+(a COMMAND_ACK listener that sends the next command) then goes on at that rate in sim time instead of holding
+phase 0 forever; a mission upload or a burst of setpoints is far below it. Counted by the loop's sim time, so
+the same messages are handled in the same loop at any pace."""
+
+
 class MavlinkServer:
     """PX4-dialect MAVLink endpoint of one vehicle (system id ``vehicle + 1``, component 1).
 
@@ -176,6 +184,10 @@ class MavlinkServer:
         self._lock = threading.Lock()
         """Serialises the hub thread (datagrams, wall-clock deadlines) and the stepping thread (the bell)."""
         self._ring_at: Callable[[int], None] | None = None
+        self._loop_t = -1
+        self._loop_datagrams = 0
+        self._deferred: list[tuple[int, bytes, tuple[str, int]]] = []
+        """What came after this loop's share: handled at the next step (``DATAGRAMS_PER_LOOP``)."""
         self.next_wake_ns = 0
         """Wall time (monotonic ns) at which the hub must call :meth:`service` at the latest."""
         dialect.bind(self, mav, self.sysid)
@@ -265,6 +277,8 @@ class MavlinkServer:
         with self._lock:
             self._stepping = True
             try:
+                if self._deferred:
+                    self._handle_deferred(self._wall_ns())
                 self._service(self._wall_ns())
             finally:
                 self._stepping = False
@@ -287,10 +301,10 @@ class MavlinkServer:
         except Exception as e:
             self._count("handler_errors")
             self._log_once(e, "service")
+        sim_peers = self._sim_peers()
+        retry = self.missions.next_retry_ns() or _NEVER
         wake = min(
-            self.heartbeat.next_due_ns(),
-            self.streams.next_due_wall_ns() or _NEVER,
-            self.missions.next_retry_ns() or _NEVER,
+            self.heartbeat.next_due_ns(), self.streams.next_due_wall_ns() or _NEVER, _NEVER if sim_peers else retry
         )
         if self.params.busy:
             wake = min(wake, now + _PARAM_PACE_NS)
@@ -300,7 +314,14 @@ class MavlinkServer:
             wake = min(wake, now + (_POLL_NS if self._sim_moving else _POLL_PAUSED_NS))
         else:
             wake = min(wake, now + _SAFETY_NS)
-            self._ring_at(min(self.streams.next_due_sim_ns() or _NEVER, self.heartbeat.next_due_sim_ns() or _NEVER))
+            self._ring_at(
+                min(
+                    self.streams.next_due_sim_ns() or _NEVER,
+                    self.heartbeat.next_due_sim_ns() or _NEVER,
+                    self._t_ns + 1 if self._deferred else _NEVER,
+                    retry if sim_peers else _NEVER,
+                )
+            )
         self.next_wake_ns = wake
 
     def _log_once(self, e: Exception, what: str) -> None:
@@ -321,14 +342,23 @@ class MavlinkServer:
     # ------------------------------------------------------------------ receive
     def _on_datagram(self, link: int, data: bytes, addr: tuple[str, int], now: int) -> None:
         if data.startswith(SETTLE_PREFIX):
-            # a mission's runtime asks whether all it sent before is handled: yes (one socket, in order);
-            # what that caused (a forced heartbeat, a STATUSTEXT, a due message) goes out before the answer
+            # a mission's runtime asks whether all it sent before is handled: yes (one socket, in order; what
+            # came after this loop's share waits for the next step, which is as sure); what that caused (a
+            # forced heartbeat, a STATUSTEXT, a due message) goes out before the answer
             self._drain_tcp(now)  # its MAVLink may have come over TCP (SERIAL0) instead
             self._service(now)
             while self.params.busy:  # a parameter list it asked for goes out now, not paced on the wall clock
                 self._send_all(self.params.tick(), now)
             self.links[link].send(data, addr)
             return
+        if self._deferred or not self._in_budget():
+            self._deferred.append((link, data, addr))
+            if self._ring_at is not None:
+                self._ring_at(self._t_ns + 1)
+            return
+        self._handle(link, data, addr, now)
+
+    def _handle(self, link: int, data: bytes, addr: tuple[str, int], now: int) -> None:
         self._count("datagrams_rx")
         for d in self.codec.decode(data):
             if d.status is FrameStatus.UNSIGNED and self._trusted(link, addr):
@@ -359,6 +389,38 @@ class MavlinkServer:
                 except Exception as e:
                     self._count("handler_errors")
                     self._log_once(e, f"handling {m.get_type()}")
+
+    def _loop_t_ns(self) -> int:
+        return max(self._t_ns, self.api.telemetry.state().t_ns)
+
+    def _sim_peers(self) -> bool:
+        """Whether a peer that lives on sim time (a mission) talks to this vehicle."""
+        return any(link.has_sim_peers for link in self.links)
+
+    def _peer_now(self, now: int) -> int:
+        """The clock of timeouts that concern peers (mission-upload retries, data-link loss): sim time while a
+        mission talks to this vehicle (it answers only in phase 0, however long the machine takes between two
+        phases), the wall clock for ground stations alone."""
+        return self._loop_t_ns() if self._sim_peers() else now
+
+    def _in_budget(self) -> bool:
+        """Count one datagram against this loop's share (``DATAGRAMS_PER_LOOP``); False once it is used up."""
+        t = self._loop_t_ns()
+        if t != self._loop_t:
+            self._loop_t, self._loop_datagrams = t, 0
+        if self._loop_datagrams >= DATAGRAMS_PER_LOOP:
+            return False
+        self._loop_datagrams += 1
+        return True
+
+    def _handle_deferred(self, now: int) -> None:
+        """The next step (the bell): what waited for it is handled first, in the order it came."""
+        deferred, self._deferred = self._deferred, []
+        for k, (link, data, addr) in enumerate(deferred):
+            if not self._in_budget():
+                self._deferred = deferred[k:]
+                return
+            self._handle(link, data, addr, now)
 
     def _trusted(self, link: int, addr: tuple[str, int]) -> bool:
         trust = self._trust_unsigned
@@ -392,7 +454,7 @@ class MavlinkServer:
         mid = m.get_msgId()
         if mid == _M.MAVLINK_MSG_ID_HEARTBEAT:
             if m.type == _M.MAV_TYPE_GCS:
-                self.datalink.heard_gcs(now)
+                self.datalink.heard_gcs(self._peer_now(now))
             return
         if not self._for_us(m):
             self._count("not_for_us")
@@ -410,7 +472,7 @@ class MavlinkServer:
             if refusal is not None:
                 self._say(Severity.WARNING, refusal.reason, now)
         elif mid in _MISSION_IDS:
-            self._send_all(self.missions.handle(m, origin, now), now)
+            self._send_all(self.missions.handle(m, origin, self._peer_now(now)), now)
             self._mission_refusals(now)
         elif mid in PILOT_IDS:
             r = handle_pilot(self.api, m, self.sysid)
@@ -432,7 +494,10 @@ class MavlinkServer:
         elif mid == _M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL:
             self._send_all(ftp.nak(self.codec.mav, m, origin), now)
         elif mid == _M.MAVLINK_MSG_ID_TIMESYNC and m.tc1 == 0:
-            self._send(Out(self.codec.mav.timesync_encode(now, m.ts1), origin), now)
+            # tc1 on the time base of every time_boot_ms and time_usec this vehicle sends: sim time since boot
+            # (the last step's), as PX4 answers with its own boot time — never the host's uptime
+            t_ns = max(self._t_ns, self.api.telemetry.state().t_ns)
+            self._send(Out(self.codec.mav.timesync_encode(t_ns, m.ts1), origin), now)
 
     def _command(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
         cmd = CommandIn.from_message(m)
@@ -483,7 +548,7 @@ class MavlinkServer:
         self._t_ns = max(self._t_ns, state.t_ns)
         mav = self.codec.mav
         outs: list[Out] = []
-        sim_peers = any(link.has_sim_peers for link in self.links)
+        sim_peers = self._sim_peers()
         if self.heartbeat.due(now, state, sim_peers):
             outs.append(Out(self.dialect.heartbeat(mav, state), wall_clock=self.heartbeat.by_wall))
         t_ms = self._boot_ms()
@@ -504,13 +569,13 @@ class MavlinkServer:
             outs.append(Out(mav.mission_item_reached_encode(reached.seq & 0xFFFF)))
         outs += self.dialect.tick(state, now)
         self._send_all(outs, now)
-        lost = self.datalink.check(state, now)
+        lost = self.datalink.check(state, self._peer_now(now))
         if lost:
             self._say(Severity.CRITICAL, lost, now)
         for text in self.api.telemetry.pop_status_texts():
             self._say(text.severity, text.text, now)
         self._send_all(self.params.tick(), now)
-        self._send_all(self.missions.tick(now), now)
+        self._send_all(self.missions.tick(self._peer_now(now)), now)
         self._mission_refusals(now)
 
     def _set_home_at_first_fix(self, state: VehicleState) -> bool:

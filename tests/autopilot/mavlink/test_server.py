@@ -194,6 +194,17 @@ def test_ping_and_home_before_arming(gcs: Gcs, idle_rig: Rig) -> None:
     assert gcs.recv("HOME_POSITION").latitude == home.latitude
 
 
+def test_timesync_answers_on_the_time_base_of_the_telemetry(gcs: Gcs, idle_rig: Rig) -> None:
+    """TIMESYNC's tc1 is sim time since boot, the base of every time_boot_ms: a ground station that aligns its
+    clock with TIMESYNC is within one step of the telemetry (before: the host's uptime, thousands of seconds)."""
+    att = gcs.recv("ATTITUDE")
+    gcs.send(gcs.mav.timesync_encode(0, 987_654_321))
+    answer = gcs.recv("TIMESYNC", cond=lambda m: m.ts1 == 987_654_321)
+    after = gcs.recv("ATTITUDE")
+    assert att.time_boot_ms * 1_000_000 <= answer.tc1 <= after.time_boot_ms * 1_000_000 + 4_000_000
+    assert abs(answer.tc1 - idle_rig.ap.telemetry.state().t_ns) < 1_000_000_000
+
+
 def test_gcs_port_and_api_port_both_serve_and_set_mode_message(gcs: Gcs) -> None:
     """Vehicle 2 (sysid 3): its API link sends to api_port_base + 2, its GCS link to the GCS port; both
     answer; the SET_MODE message (no ACK) changes the mode; the other GCS sees it."""

@@ -1,0 +1,184 @@
+"""A C library's threads on the sim clock: ``simtime.c``, built once per machine, GOT-patched into the library.
+
+MAVSDK's native core (``mavsdk/lib/libcmavsdk.so``, which both MAVSDK APIs run on in a mission) is linked
+dynamically against libc, with libstdc++ inside it: every clock read, sleep, condition variable, futex, poll,
+receive and thread it makes goes through its own GOT. :func:`attach` rewrites those GOT entries to
+``simtime.c``, so that the library's timers, timeouts and waits follow sim time and its threads take part in
+the phase-0 idle decision of :class:`~harness.simclock.runtime.SimRuntime` (see ``docs/simclock.md``).
+
+The shared object is compiled with the machine's C compiler the first time it is needed (about 0.3 s) into
+the user's cache directory, keyed by the source's hash; a launcher builds it before it starts missions, so a
+run of a hundred missions compiles once. Without a C compiler the library keeps the wall clock: one warning
+says so, and everything else works as before.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import fcntl
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+SOURCE = Path(__file__).with_name("simtime.c")
+NO_DEADLINE = (1 << 63) - 1
+_warned = False
+
+
+def cache_dir() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "uav-harness"
+
+
+def compiler() -> str | None:
+    """The C compiler: ``$CC``, else ``cc``, ``gcc`` or ``clang`` on PATH."""
+    cc = os.environ.get("CC")
+    if cc and shutil.which(cc.split()[0]):
+        return cc
+    for name in ("cc", "gcc", "clang"):
+        if shutil.which(name):
+            return name
+    return None
+
+
+def library_path() -> Path:
+    digest = hashlib.sha256(SOURCE.read_bytes()).hexdigest()[:16]
+    return cache_dir() / f"simtime-{digest}.so"
+
+
+def build() -> Path | None:
+    """The compiled shim (building it if needed); None without a C compiler or when the build fails."""
+    global _warned
+    target = library_path()
+    if target.is_file():
+        return target
+    cc = compiler()
+    if cc is None:
+        if not _warned:
+            _warned = True
+            log.warning("no C compiler (cc, gcc or clang): MAVSDK's own threads stay on the wall clock")
+        return None
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with open(target.parent / ".simtime.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # a hundred missions may ask at once: one compiles
+        if target.is_file():
+            return target
+        fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
+        os.close(fd)
+        cmd = [*cc.split(), "-O2", "-shared", "-fPIC", "-o", tmp, str(SOURCE), "-lpthread"]
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if proc.returncode != 0:
+            os.unlink(tmp)
+            if not _warned:
+                _warned = True
+                log.warning(
+                    "building %s failed (%s): MAVSDK's own threads stay on the wall clock",
+                    SOURCE.name,
+                    proc.stderr.strip().splitlines()[-1:] or proc.returncode,
+                )
+            return None
+        os.replace(tmp, target)
+    return target
+
+
+@dataclass(eq=False)
+class NativeClock:
+    """The shim in this process: the clock thread's handle on the C threads of the patched library."""
+
+    lib: ctypes.CDLL
+    patched: int
+    """GOT entries rewritten."""
+
+    def begin(self, t_ns: int) -> None:
+        self.lib.hs_begin(t_ns)
+
+    def try_close(self) -> bool:
+        return bool(self.lib.hs_try_close())
+
+    def reopen(self) -> None:
+        self.lib.hs_reopen()
+
+    def pause(self) -> None:
+        """Shut the gate without ending the phase (a settle is in flight); :meth:`reopen` opens it again."""
+        self.lib.hs_pause()
+
+    def busy(self) -> int:
+        return int(self.lib.hs_busy())
+
+    def sent(self) -> int:
+        return int(self.lib.hs_sent())
+
+    def thread_waiting(self, ident: int) -> bool:
+        return bool(self.lib.hs_thread_waiting(ident))
+
+    def next_deadline_ns(self) -> int:
+        return int(self.lib.hs_next_deadline())
+
+    def waits_for_io(self) -> bool:
+        return bool(self.lib.hs_waits_for_io())
+
+    def generation(self) -> int:
+        return int(self.lib.hs_generation())
+
+    def wait_change(self, generation: int, timeout_ns: int) -> None:
+        self.lib.hs_wait_change(generation, timeout_ns)
+
+    def poke(self) -> None:
+        self.lib.hs_poke()
+
+    def close(self) -> None:
+        self.lib.hs_close()
+
+    def describe(self) -> str:
+        buf = ctypes.create_string_buffer(8192)
+        self.lib.hs_describe(buf, len(buf))
+        return buf.value.decode(errors="replace")
+
+
+def _load(path: Path) -> ctypes.CDLL:
+    lib = ctypes.CDLL(str(path))
+    i64, u64 = ctypes.c_int64, ctypes.c_uint64
+    lib.hs_configure.argtypes = [i64, i64]
+    lib.hs_begin.argtypes = [i64]
+    lib.hs_next_deadline.restype = i64
+    lib.hs_thread_waiting.argtypes = [u64]
+    lib.hs_sent.restype = u64
+    lib.hs_generation.restype = u64
+    lib.hs_wait_change.argtypes = [u64, i64]
+    lib.hs_patch.argtypes = [ctypes.c_char_p]
+    lib.hs_describe.argtypes = [ctypes.c_char_p, ctypes.c_int]
+    return lib
+
+
+_ATTACHED: NativeClock | None = None
+
+
+def attach(library: str, epoch_ns: int, now_ns: int) -> NativeClock | None:
+    """Put the threads of the loaded library whose path contains ``library`` on the sim clock.
+
+    Idempotent; None when the shim cannot be built (no compiler) or the library has nothing to patch."""
+    global _ATTACHED
+    if _ATTACHED is not None:
+        return _ATTACHED
+    if not sys.platform.startswith("linux"):
+        return None
+    path = build()
+    if path is None:
+        return None
+    lib = _load(path)
+    lib.hs_configure(epoch_ns, now_ns)
+    patched = int(lib.hs_patch(library.encode()))
+    if patched == 0:
+        log.warning("%s is not loaded or imports nothing to patch: its threads stay on the wall clock", library)
+        return None
+    log.debug("%s: %d calls on the sim clock", library, patched)
+    _ATTACHED = NativeClock(lib, patched)
+    return _ATTACHED

@@ -1,0 +1,1040 @@
+/*
+ * simtime.c: a C library's threads on the simulation clock (MAVSDK's libcmavsdk.so in a mission process).
+ *
+ * harness.simclock.native builds this file once per machine (cc -O2 -shared -fPIC) and loads it with ctypes.
+ * hs_patch() rewrites the GOT entries of one loaded library (the one whose path contains a given string) so
+ * that its calls to the clock, sleeps, condition variables, futexes, poll/epoll/select, blocking receives,
+ * timerfds and pthread_create come here instead of to libc. Nothing else in the process is touched: the
+ * Python interpreter keeps the real libc.
+ *
+ * The model is the Python runtime's (harness/simclock/runtime.py), for C threads:
+ *  - time: CLOCK_MONOTONIC/BOOTTIME read the sim time, CLOCK_REALTIME (and gettimeofday, time) the run's
+ *    epoch plus sim time; CPU clocks stay real.
+ *  - every blocking call becomes a *wait*: the thread is idle, with an optional sim-time deadline and the
+ *    descriptors it waits for. A wait ends only while the gate is open (phase 0), and whoever ends it marks
+ *    the thread busy first, under `mu`, so the clock thread's decision "everything is idle" and every wake-up
+ *    are serialised. Data that arrives between phases leaves the thread *pending*: it runs in the next phase.
+ *  - threads the library creates are *tracked*: phase 0 cannot end while one of them is busy. Other threads
+ *    (Python's, calling into the library) are waiting only while inside a wait; the Python runtime asks
+ *    hs_thread_waiting() about them.
+ *  - condition variables and futexes are emulated (a signal releases every waiter on that address: spurious
+ *    wake-ups are allowed by both), timerfds are eventfds that fire when sim time passes their deadline.
+ *  - sends count as MAVLink sent to the vehicle, which the runtime settles before phase 0 ends.
+ * The clock thread drives it: hs_begin(t) opens the gate, hs_try_close() ends the phase when it can.
+ */
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <elf.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <limits.h>
+#include <link.h>
+#include <linux/futex.h>
+#include <poll.h>
+#include <pthread.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/epoll.h>
+#include <sys/eventfd.h>
+#include <sys/mman.h>
+#include <sys/select.h>
+#include <sys/socket.h>
+#include <sys/syscall.h>
+#include <sys/time.h>
+#include <sys/timerfd.h>
+#include <time.h>
+#include <unistd.h>
+
+#define NO_DEADLINE INT64_MAX
+#define MAX_FDS 64
+#define MAX_TIMERS 64
+#define MAX_CONDS 1024
+
+typedef struct tstate {
+    struct tstate *next;
+    int index; /* creation order: names the thread in a trace */
+    pthread_t self;
+    int evfd;            /* written to wake this thread */
+    int tracked;         /* created by the library: counts in the phase's idle decision */
+    int waiting;         /* inside a wait */
+    int released;        /* its wait was ended (by a wake, a deadline or its I/O): it runs */
+    int pending;         /* its I/O or a wake came while the gate was closed: released at the next phase */
+    int timed_out;
+    int64_t deadline;    /* sim ns, NO_DEADLINE */
+    const void *addr;    /* the condition variable or futex it waits on */
+    int nfds;
+    struct pollfd fds[MAX_FDS];
+} tstate;
+
+typedef struct {
+    int fd;
+    int64_t deadline;
+    int64_t interval;
+} simtimer;
+
+typedef struct {
+    const void *cond;
+    clockid_t clock;
+} condclock;
+
+static pthread_mutex_t mu = PTHREAD_MUTEX_INITIALIZER;
+static pthread_cond_t changed = PTHREAD_COND_INITIALIZER; /* the clock thread waits on it */
+static uint64_t generation;
+static int64_t now_ns;
+static int64_t epoch_ns;
+static int gate_open;
+static int closed; /* the run is over: every wait ends */
+static uint64_t sent;
+static tstate *threads;
+static simtimer timers[MAX_TIMERS];
+static condclock condclocks[MAX_CONDS];
+static pthread_key_t tkey;
+static pthread_once_t tkey_once = PTHREAD_ONCE_INIT;
+static int patched_count;
+static int thread_count;
+static FILE *trace; /* HARNESS_SIMTIME_TRACE: every release, for comparing two runs */
+
+#define TRACE(...)                                                                                        \
+    do {                                                                                                  \
+        if (trace) {                                                                                      \
+            fprintf(trace, "%lld ", (long long)now_ns);                                                   \
+            fprintf(trace, __VA_ARGS__);                                                                  \
+            fputc('\n', trace);                                                                           \
+        }                                                                                                 \
+    } while (0)
+
+/* -- the real functions ------------------------------------------------------------------------------ */
+
+static int real_clock_gettime(clockid_t c, struct timespec *ts) { return clock_gettime(c, ts); }
+
+static int real_poll(struct pollfd *f, nfds_t n, int ms) { return (int)syscall(SYS_poll, f, n, ms); }
+
+/* -- thread states (mu held) ------------------------------------------------------------------------- */
+
+static void poke_locked(void) {
+    generation++;
+    pthread_cond_broadcast(&changed);
+}
+
+static void wake_fd(int fd) {
+    uint64_t one = 1;
+    ssize_t r = write(fd, &one, sizeof one);
+    (void)r;
+}
+
+/* Read an eventfd's count if it has one (never blocks: a timer's eventfd may be blocking). */
+static void drain_fd(int fd) {
+    struct pollfd p = {.fd = fd, .events = POLLIN};
+    if (real_poll(&p, 1, 0) > 0) {
+        uint64_t v;
+        ssize_t r = read(fd, &v, sizeof v);
+        (void)r;
+    }
+}
+
+/* Mark a waiting thread busy and let it run; gated: outside phase 0 it is left pending. */
+static void release_locked(tstate *t, int timed_out) {
+    if (!t->waiting || t->released)
+        return;
+    if (!gate_open && !closed) {
+        t->pending = 1;
+        return;
+    }
+    t->released = 1;
+    t->pending = 0;
+    t->timed_out = timed_out;
+    TRACE("release %d%s addr=%d fds=%d", t->index, timed_out ? " timeout" : "", t->addr != NULL, t->nfds);
+    wake_fd(t->evfd);
+}
+
+static void forget_thread(void *p) {
+    tstate *t = p;
+    pthread_mutex_lock(&mu);
+    for (tstate **pp = &threads; *pp; pp = &(*pp)->next) {
+        if (*pp == t) {
+            *pp = t->next;
+            break;
+        }
+    }
+    poke_locked();
+    pthread_mutex_unlock(&mu);
+    close(t->evfd);
+    free(t);
+}
+
+static void make_key(void) { pthread_key_create(&tkey, forget_thread); }
+
+static tstate *new_state(int tracked) {
+    tstate *t = calloc(1, sizeof *t);
+    if (!t)
+        abort();
+    t->evfd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    t->tracked = tracked;
+    t->deadline = NO_DEADLINE;
+    pthread_mutex_lock(&mu);
+    t->index = tracked ? ++thread_count : -(++thread_count);
+    TRACE("thread %d", t->index);
+    t->next = threads;
+    threads = t;
+    pthread_mutex_unlock(&mu);
+    return t;
+}
+
+static tstate *me(void) {
+    pthread_once(&tkey_once, make_key);
+    tstate *t = pthread_getspecific(tkey);
+    if (!t) {
+        t = new_state(0);
+        t->self = pthread_self();
+        pthread_setspecific(tkey, t);
+    }
+    return t;
+}
+
+/* -- the wait ---------------------------------------------------------------------------------------- */
+
+/* Block the calling thread (idle) until released: by a wake on `addr`, its descriptors becoming ready,
+ * sim time reaching `deadline`, or the end of the run. `fds` are polled, never consumed. Returns 1 when
+ * the wait timed out. `mu` must NOT be held; `locked` says whether the caller registered under mu already
+ * (cond/futex waits register atomically with their own checks). */
+static int sim_wait(tstate *t, const struct pollfd *fds, int nfds, int64_t deadline, const void *addr, int locked) {
+    if (!locked)
+        pthread_mutex_lock(&mu);
+    if (nfds > MAX_FDS)
+        nfds = MAX_FDS;
+    t->nfds = nfds;
+    if (nfds)
+        memcpy(t->fds, fds, (size_t)nfds * sizeof *fds);
+    t->deadline = deadline;
+    t->addr = addr;
+    t->released = t->pending = t->timed_out = 0;
+    t->waiting = 1;
+    if (closed || (deadline != NO_DEADLINE && deadline <= now_ns && gate_open))
+        release_locked(t, !closed);
+    poke_locked();
+    pthread_mutex_unlock(&mu);
+
+    struct pollfd pfd[MAX_FDS + 1];
+    for (;;) {
+        pthread_mutex_lock(&mu);
+        int released = t->released, pending = t->pending;
+        pthread_mutex_unlock(&mu);
+        if (released)
+            break;
+        int n = 0;
+        if (!pending) { /* while pending, only a wake counts: the descriptors stay ready */
+            for (int i = 0; i < t->nfds; i++)
+                pfd[n++] = t->fds[i];
+        }
+        pfd[n].fd = t->evfd;
+        pfd[n].events = POLLIN;
+        pfd[n].revents = 0;
+        int r = real_poll(pfd, (nfds_t)n + 1, -1);
+        if (r < 0 && errno != EINTR)
+            break; /* cannot wait at all: return rather than spin */
+        if (pfd[n].revents)
+            drain_fd(t->evfd);
+        int ready = 0;
+        for (int i = 0; i < n; i++)
+            ready |= pfd[i].revents != 0;
+        if (ready) {
+            pthread_mutex_lock(&mu);
+            release_locked(t, 0);
+            if (t->pending)
+                poke_locked();
+            pthread_mutex_unlock(&mu);
+        }
+    }
+    pthread_mutex_lock(&mu);
+    int timed_out = t->timed_out;
+    t->waiting = t->released = t->pending = 0;
+    t->addr = NULL;
+    t->nfds = 0;
+    pthread_mutex_unlock(&mu);
+    return timed_out;
+}
+
+static int64_t ts_ns(const struct timespec *ts) { return (int64_t)ts->tv_sec * 1000000000LL + ts->tv_nsec; }
+
+static int64_t add_ns(int64_t a, int64_t b) { return (b > 0 && a > NO_DEADLINE - b) ? NO_DEADLINE : a + b; }
+
+static int64_t sim_now(void) { return __atomic_load_n(&now_ns, __ATOMIC_ACQUIRE); }
+
+static int is_sim_clock(clockid_t c) {
+    return c == CLOCK_MONOTONIC || c == CLOCK_MONOTONIC_RAW || c == CLOCK_MONOTONIC_COARSE || c == CLOCK_BOOTTIME;
+}
+
+static int is_wall_clock(clockid_t c) { return c == CLOCK_REALTIME || c == CLOCK_REALTIME_COARSE || c == CLOCK_TAI; }
+
+/* An absolute time on clock `c` as a sim deadline. */
+static int64_t abs_deadline(clockid_t c, const struct timespec *abst) {
+    if (!abst)
+        return NO_DEADLINE;
+    int64_t v = ts_ns(abst);
+    return is_wall_clock(c) ? v - epoch_ns : v;
+}
+
+/* -- the wrappers ------------------------------------------------------------------------------------- */
+
+static int hs_clock_gettime(clockid_t c, struct timespec *ts) {
+    int64_t v;
+    if (is_sim_clock(c))
+        v = sim_now();
+    else if (is_wall_clock(c))
+        v = epoch_ns + sim_now();
+    else
+        return real_clock_gettime(c, ts);
+    ts->tv_sec = v / 1000000000LL;
+    ts->tv_nsec = v % 1000000000LL;
+    return 0;
+}
+
+static int hs_gettimeofday(struct timeval *tv, void *tz) {
+    (void)tz;
+    if (tv) {
+        int64_t v = epoch_ns + sim_now();
+        tv->tv_sec = v / 1000000000LL;
+        tv->tv_usec = (v % 1000000000LL) / 1000;
+    }
+    return 0;
+}
+
+static time_t hs_time(time_t *out) {
+    time_t v = (time_t)((epoch_ns + sim_now()) / 1000000000LL);
+    if (out)
+        *out = v;
+    return v;
+}
+
+static int hs_nanosleep(const struct timespec *req, struct timespec *rem) {
+    if (rem)
+        rem->tv_sec = rem->tv_nsec = 0;
+    if (!req || ts_ns(req) <= 0)
+        return 0;
+    sim_wait(me(), NULL, 0, add_ns(sim_now(), ts_ns(req)), NULL, 0);
+    return 0;
+}
+
+static clockid_t cond_clock(const void *c) {
+    clockid_t clk = CLOCK_REALTIME;
+    pthread_mutex_lock(&mu);
+    for (int i = 0; i < MAX_CONDS; i++) {
+        if (condclocks[i].cond == c) {
+            clk = condclocks[i].clock;
+            break;
+        }
+    }
+    pthread_mutex_unlock(&mu);
+    return clk;
+}
+
+static int hs_cond_init(pthread_cond_t *c, const pthread_condattr_t *a) {
+    int r = pthread_cond_init(c, a);
+    clockid_t clk = CLOCK_REALTIME;
+    if (a)
+        pthread_condattr_getclock(a, &clk);
+    pthread_mutex_lock(&mu);
+    int slot = -1;
+    for (int i = 0; i < MAX_CONDS; i++) {
+        if (condclocks[i].cond == c) {
+            slot = i;
+            break;
+        }
+        if (slot < 0 && !condclocks[i].cond)
+            slot = i;
+    }
+    if (slot >= 0 && clk != CLOCK_REALTIME) {
+        condclocks[slot].cond = c;
+        condclocks[slot].clock = clk;
+    } else if (slot >= 0 && condclocks[slot].cond == c) {
+        condclocks[slot].cond = NULL;
+    }
+    pthread_mutex_unlock(&mu);
+    return r;
+}
+
+static int hs_cond_destroy(pthread_cond_t *c) {
+    pthread_mutex_lock(&mu);
+    for (int i = 0; i < MAX_CONDS; i++) {
+        if (condclocks[i].cond == c)
+            condclocks[i].cond = NULL;
+    }
+    pthread_mutex_unlock(&mu);
+    return pthread_cond_destroy(c);
+}
+
+static int cond_wait(pthread_cond_t *c, pthread_mutex_t *m, int64_t deadline) {
+    tstate *t = me();
+    pthread_mutex_lock(&mu); /* registered while `m` is still held: a signal after this finds us */
+    pthread_mutex_unlock(m);
+    int timed_out = sim_wait(t, NULL, 0, deadline, c, 1);
+    pthread_mutex_lock(m);
+    return timed_out ? ETIMEDOUT : 0;
+}
+
+static int hs_cond_wait(pthread_cond_t *c, pthread_mutex_t *m) { return cond_wait(c, m, NO_DEADLINE); }
+
+static int hs_cond_timedwait(pthread_cond_t *c, pthread_mutex_t *m, const struct timespec *abst) {
+    return cond_wait(c, m, abs_deadline(cond_clock(c), abst));
+}
+
+static int wake_addr(const void *addr) {
+    int n = 0;
+    pthread_mutex_lock(&mu);
+    for (tstate *t = threads; t; t = t->next) {
+        if (t->waiting && !t->released && t->addr == addr) {
+            release_locked(t, 0);
+            n++;
+        }
+    }
+    poke_locked();
+    pthread_mutex_unlock(&mu);
+    return n;
+}
+
+static int hs_cond_signal(pthread_cond_t *c) {
+    wake_addr(c);
+    return pthread_cond_broadcast(c);
+}
+
+static int hs_cond_broadcast(pthread_cond_t *c) {
+    wake_addr(c);
+    return pthread_cond_broadcast(c);
+}
+
+static int64_t ms_deadline(int ms) { return ms < 0 ? NO_DEADLINE : add_ns(sim_now(), (int64_t)ms * 1000000LL); }
+
+static int hs_poll(struct pollfd *fds, nfds_t n, int ms) {
+    if (ms == 0)
+        return real_poll(fds, n, 0);
+    int64_t deadline = ms_deadline(ms);
+    tstate *t = me();
+    for (;;) {
+        int r = real_poll(fds, n, 0);
+        if (r != 0)
+            return r;
+        if (sim_wait(t, fds, (int)n, deadline, NULL, 0))
+            return real_poll(fds, n, 0);
+    }
+}
+
+static int hs_epoll_wait(int ep, struct epoll_event *ev, int max, int ms) {
+    if (ms == 0)
+        return epoll_wait(ep, ev, max, 0);
+    int64_t deadline = ms_deadline(ms);
+    tstate *t = me();
+    struct pollfd p = {.fd = ep, .events = POLLIN};
+    for (;;) {
+        int r = epoll_wait(ep, ev, max, 0);
+        if (r != 0)
+            return r;
+        if (sim_wait(t, &p, 1, deadline, NULL, 0))
+            return epoll_wait(ep, ev, max, 0);
+    }
+}
+
+static int hs_select(int nfds, fd_set *r, fd_set *w, fd_set *e, struct timeval *tv) {
+    struct timeval zero = {0, 0};
+    if (tv && tv->tv_sec == 0 && tv->tv_usec == 0)
+        return select(nfds, r, w, e, tv);
+    int64_t deadline = tv ? add_ns(sim_now(), (int64_t)tv->tv_sec * 1000000000LL + (int64_t)tv->tv_usec * 1000) : NO_DEADLINE;
+    fd_set r0, w0, e0;
+    if (r) r0 = *r;
+    if (w) w0 = *w;
+    if (e) e0 = *e;
+    struct pollfd p[MAX_FDS];
+    int n = 0;
+    for (int fd = 0; fd < nfds && n < MAX_FDS; fd++) {
+        short evs = (short)((r && FD_ISSET(fd, &r0) ? POLLIN : 0) | (w && FD_ISSET(fd, &w0) ? POLLOUT : 0) |
+                            (e && FD_ISSET(fd, &e0) ? POLLPRI : 0));
+        if (evs) {
+            p[n].fd = fd;
+            p[n].events = evs;
+            p[n++].revents = 0;
+        }
+    }
+    tstate *t = me();
+    for (;;) {
+        if (r) *r = r0;
+        if (w) *w = w0;
+        if (e) *e = e0;
+        struct timeval z = zero;
+        int res = select(nfds, r, w, e, &z);
+        if (res != 0)
+            return res;
+        if (sim_wait(t, p, n, deadline, NULL, 0)) {
+            if (r) *r = r0;
+            if (w) *w = w0;
+            if (e) *e = e0;
+            z = zero;
+            return select(nfds, r, w, e, &z);
+        }
+    }
+}
+
+static int nonblocking(int fd) { return (fcntl(fd, F_GETFL) & O_NONBLOCK) != 0; }
+
+/* The socket's SO_RCVTIMEO as a sim deadline. */
+static int64_t rcv_deadline(int fd) {
+    struct timeval tv = {0, 0};
+    socklen_t len = sizeof tv;
+    if (getsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, &len) != 0 || (tv.tv_sec == 0 && tv.tv_usec == 0))
+        return NO_DEADLINE;
+    return add_ns(sim_now(), (int64_t)tv.tv_sec * 1000000000LL + (int64_t)tv.tv_usec * 1000);
+}
+
+/* A blocking receive: try without blocking, else wait (idle) for the socket on the sim clock. */
+#define BLOCKING_RECV(fd, flags, call)                                                                    \
+    do {                                                                                                  \
+        if (((flags) & MSG_DONTWAIT) || nonblocking(fd))                                                 \
+            return call((flags));                                                                         \
+        int64_t deadline_ = rcv_deadline(fd);                                                             \
+        struct pollfd p_ = {.fd = (fd), .events = POLLIN};                                                \
+        tstate *t_ = me();                                                                                \
+        for (;;) {                                                                                        \
+            ssize_t r_ = call((flags) | MSG_DONTWAIT);                                                    \
+            if (r_ >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK))                                     \
+                return r_;                                                                                \
+            if (sim_wait(t_, &p_, 1, deadline_, NULL, 0)) {                                               \
+                errno = EAGAIN;                                                                           \
+                return -1;                                                                                \
+            }                                                                                             \
+        }                                                                                                 \
+    } while (0)
+
+static ssize_t hs_recv(int fd, void *buf, size_t len, int flags) {
+#define CALL(f) recv(fd, buf, len, f)
+    BLOCKING_RECV(fd, flags, CALL);
+#undef CALL
+}
+
+static ssize_t hs_recvfrom(int fd, void *buf, size_t len, int flags, struct sockaddr *a, socklen_t *al) {
+#define CALL(f) recvfrom(fd, buf, len, f, a, al)
+    BLOCKING_RECV(fd, flags, CALL);
+#undef CALL
+}
+
+static int hs_recvmmsg(int fd, struct mmsghdr *v, unsigned int n, int flags, struct timespec *tmo) {
+    (void)tmo;
+#define CALL(f) recvmmsg(fd, v, n, f, NULL)
+    BLOCKING_RECV(fd, flags, CALL);
+#undef CALL
+}
+
+static int hs_accept(int fd, struct sockaddr *a, socklen_t *al) {
+    if (nonblocking(fd))
+        return accept(fd, a, al);
+    struct pollfd p = {.fd = fd, .events = POLLIN};
+    tstate *t = me();
+    for (;;) {
+        struct pollfd q = p;
+        if (real_poll(&q, 1, 0) > 0)
+            return accept(fd, a, al);
+        sim_wait(t, &p, 1, NO_DEADLINE, NULL, 0);
+    }
+}
+
+static void count_sent(ssize_t r) {
+    if (r >= 0) {
+        __atomic_add_fetch(&sent, 1, __ATOMIC_RELEASE);
+        if (trace) {
+            pthread_mutex_lock(&mu);
+            TRACE("send %zd", r);
+            pthread_mutex_unlock(&mu);
+        }
+    }
+}
+
+static ssize_t hs_sendto(int fd, const void *b, size_t n, int fl, const struct sockaddr *a, socklen_t al) {
+    ssize_t r = sendto(fd, b, n, fl, a, al);
+    count_sent(r);
+    return r;
+}
+
+static ssize_t hs_send(int fd, const void *b, size_t n, int fl) {
+    ssize_t r = send(fd, b, n, fl);
+    count_sent(r);
+    return r;
+}
+
+static ssize_t hs_sendmsg(int fd, const struct msghdr *m, int fl) {
+    ssize_t r = sendmsg(fd, m, fl);
+    count_sent(r);
+    return r;
+}
+
+static int hs_sendmmsg(int fd, struct mmsghdr *v, unsigned int n, int fl) {
+    int r = sendmmsg(fd, v, n, fl);
+    count_sent(r);
+    return r;
+}
+
+/* timerfds are eventfds (a read gives the expirations, as a timerfd's does) written when sim time passes. */
+static int hs_timerfd_create(int clockid, int flags) {
+    (void)clockid;
+    int fd = eventfd(0, (flags & TFD_NONBLOCK ? EFD_NONBLOCK : 0) | (flags & TFD_CLOEXEC ? EFD_CLOEXEC : 0));
+    if (fd < 0)
+        return fd;
+    pthread_mutex_lock(&mu);
+    int ok = 0;
+    for (int i = 0; i < MAX_TIMERS; i++) {
+        if (timers[i].fd == 0) {
+            timers[i].fd = fd + 1; /* 0 marks a free slot */
+            timers[i].deadline = NO_DEADLINE;
+            timers[i].interval = 0;
+            ok = 1;
+            break;
+        }
+    }
+    pthread_mutex_unlock(&mu);
+    if (!ok) {
+        close(fd);
+        errno = EMFILE;
+        return -1;
+    }
+    return fd;
+}
+
+static void fire_due_timers_locked(void) {
+    for (int i = 0; i < MAX_TIMERS; i++) {
+        simtimer *tm = &timers[i];
+        if (tm->fd && tm->deadline <= now_ns) {
+            wake_fd(tm->fd - 1);
+            if (tm->interval > 0) {
+                while (tm->deadline <= now_ns)
+                    tm->deadline = add_ns(tm->deadline, tm->interval);
+            } else {
+                tm->deadline = NO_DEADLINE;
+            }
+        }
+    }
+}
+
+static int hs_timerfd_settime(int fd, int flags, const struct itimerspec *nv, struct itimerspec *old) {
+    pthread_mutex_lock(&mu);
+    simtimer *tm = NULL;
+    for (int i = 0; i < MAX_TIMERS; i++) {
+        if (timers[i].fd == fd + 1)
+            tm = &timers[i];
+    }
+    if (!tm) {
+        pthread_mutex_unlock(&mu);
+        return timerfd_settime(fd, flags, nv, old);
+    }
+    if (old) {
+        int64_t left = tm->deadline == NO_DEADLINE ? 0 : tm->deadline - now_ns;
+        if (left < 0) left = 0;
+        old->it_value.tv_sec = left / 1000000000LL;
+        old->it_value.tv_nsec = left % 1000000000LL;
+        old->it_interval.tv_sec = tm->interval / 1000000000LL;
+        old->it_interval.tv_nsec = tm->interval % 1000000000LL;
+    }
+    int64_t v = ts_ns(&nv->it_value);
+    tm->interval = ts_ns(&nv->it_interval);
+    if (v == 0)
+        tm->deadline = NO_DEADLINE;
+    else if (flags & TFD_TIMER_ABSTIME)
+        tm->deadline = v; /* on CLOCK_MONOTONIC, which reads sim time here */
+    else
+        tm->deadline = add_ns(now_ns, v);
+    drain_fd(fd); /* re-arming discards expirations not yet read, as timerfd_settime does */
+    if (tm->deadline <= now_ns && gate_open)
+        fire_due_timers_locked();
+    poke_locked();
+    pthread_mutex_unlock(&mu);
+    return 0;
+}
+
+static int hs_close_fd(int fd) {
+    pthread_mutex_lock(&mu);
+    for (int i = 0; i < MAX_TIMERS; i++) {
+        if (timers[i].fd == fd + 1)
+            timers[i].fd = 0;
+    }
+    pthread_mutex_unlock(&mu);
+    return close(fd);
+}
+
+static long futex_wait(uint32_t *addr, uint32_t val, int64_t deadline) {
+    tstate *t = me();
+    pthread_mutex_lock(&mu);
+    if (__atomic_load_n(addr, __ATOMIC_SEQ_CST) != val) {
+        pthread_mutex_unlock(&mu);
+        errno = EAGAIN;
+        return -1;
+    }
+    if (sim_wait(t, NULL, 0, deadline, addr, 1)) {
+        errno = ETIMEDOUT;
+        return -1;
+    }
+    return 0;
+}
+
+static long hs_syscall(long nr, long a1, long a2, long a3, long a4, long a5, long a6) {
+    if (nr == SYS_clock_gettime)
+        return hs_clock_gettime((clockid_t)a1, (struct timespec *)a2);
+    if (nr == SYS_gettimeofday)
+        return hs_gettimeofday((struct timeval *)a1, (void *)a2);
+    if (nr == SYS_futex) {
+        int op = (int)a2 & FUTEX_CMD_MASK;
+        uint32_t *addr = (uint32_t *)a1;
+        const struct timespec *tmo = (const struct timespec *)a4;
+        if (op == FUTEX_WAIT || op == FUTEX_WAIT_BITSET) {
+            int64_t deadline = NO_DEADLINE;
+            if (tmo) {
+                if (op == FUTEX_WAIT)
+                    deadline = add_ns(sim_now(), ts_ns(tmo));
+                else
+                    deadline = abs_deadline(((int)a2 & FUTEX_CLOCK_REALTIME) ? CLOCK_REALTIME : CLOCK_MONOTONIC, tmo);
+            }
+            return futex_wait(addr, (uint32_t)a3, deadline);
+        }
+        if (op == FUTEX_WAKE || op == FUTEX_WAKE_BITSET) {
+            int n = wake_addr(addr);
+            long r = syscall(nr, a1, a2, a3, a4, a5, a6);
+            return r > n ? r : n;
+        }
+    }
+    return syscall(nr, a1, a2, a3, a4, a5, a6);
+}
+
+typedef struct {
+    void *(*fn)(void *);
+    void *arg;
+    tstate *t;
+} start_args;
+
+static void *trampoline(void *p) {
+    start_args s = *(start_args *)p;
+    free(p);
+    pthread_once(&tkey_once, make_key);
+    pthread_mutex_lock(&mu);
+    s.t->self = pthread_self();
+    pthread_mutex_unlock(&mu);
+    pthread_setspecific(tkey, s.t);
+    return s.fn(s.arg);
+}
+
+static int hs_pthread_create(pthread_t *th, const pthread_attr_t *attr, void *(*fn)(void *), void *arg) {
+    start_args *s = malloc(sizeof *s);
+    if (!s)
+        return EAGAIN;
+    s->fn = fn;
+    s->arg = arg;
+    s->t = new_state(1); /* busy and counted from now on: what it does first happens in this phase */
+    int r = pthread_create(th, attr, trampoline, s);
+    if (r != 0) {
+        forget_thread(s->t);
+        free(s);
+    }
+    return r;
+}
+
+/* -- the clock thread's side (called through ctypes) ------------------------------------------------- */
+
+void hs_configure(int64_t epoch, int64_t t) {
+    const char *path = getenv("HARNESS_SIMTIME_TRACE");
+    if (path && *path && !trace) {
+        trace = fopen(path, "w");
+        if (trace)
+            setvbuf(trace, NULL, _IOLBF, 0);
+    }
+    pthread_mutex_lock(&mu);
+    epoch_ns = epoch;
+    __atomic_store_n(&now_ns, t, __ATOMIC_RELEASE);
+    pthread_mutex_unlock(&mu);
+}
+
+/* Phase 0 at sim time t begins: the gate opens and every pending wait runs. */
+void hs_begin(int64_t t) {
+    pthread_mutex_lock(&mu);
+    if (t > now_ns)
+        __atomic_store_n(&now_ns, t, __ATOMIC_RELEASE);
+    gate_open = 1;
+    for (tstate *th = threads; th; th = th->next) {
+        if (th->pending)
+            release_locked(th, 0);
+    }
+    pthread_mutex_unlock(&mu);
+}
+
+/* Release every waiting thread whose descriptors are ready (mu held). */
+static int release_ready_locked(void) {
+    int n = 0;
+    for (tstate *th = threads; th; th = th->next) {
+        if (!th->waiting || th->released || !th->nfds)
+            continue;
+        struct pollfd p[MAX_FDS];
+        memcpy(p, th->fds, (size_t)th->nfds * sizeof *p);
+        if (real_poll(p, (nfds_t)th->nfds, 0) != 0) {
+            release_locked(th, 0);
+            n++;
+        }
+    }
+    return n;
+}
+
+static int busy_locked(void) {
+    int n = 0;
+    for (tstate *th = threads; th; th = th->next) {
+        if (th->tracked && (!th->waiting || th->released))
+            n++;
+    }
+    return n;
+}
+
+/* Busy tracked threads (0: every thread of the library waits). */
+int hs_busy(void) {
+    pthread_mutex_lock(&mu);
+    int n = busy_locked();
+    pthread_mutex_unlock(&mu);
+    return n;
+}
+
+/* Try to end phase 0: 1 when every tracked thread waits with nothing ready and no deadline due (the gate is
+ * then closed, atomically with that check); 0 when a thread is busy or was released now (I/O first, then
+ * the deadlines that fell due). */
+int hs_try_close(void) {
+    pthread_mutex_lock(&mu);
+    int r = 0;
+    if (busy_locked() == 0 && release_ready_locked() == 0) {
+        int due = 0;
+        fire_due_timers_locked();
+        due = release_ready_locked(); /* a fired timerfd makes its epoll readable */
+        if (!due) {
+            for (tstate *th = threads; th; th = th->next) {
+                if (th->waiting && !th->released && th->deadline <= now_ns) {
+                    release_locked(th, 1);
+                    due++;
+                }
+            }
+        }
+        if (!due) {
+            gate_open = 0;
+            r = 1;
+            TRACE("close");
+        }
+    }
+    pthread_mutex_unlock(&mu);
+    return r;
+}
+
+/* Shut the gate for a moment within the phase (the runtime settles the script's MAVLink). */
+void hs_pause(void) {
+    pthread_mutex_lock(&mu);
+    gate_open = 0;
+    pthread_mutex_unlock(&mu);
+}
+
+/* Re-open a gate closed by hs_try_close or hs_pause (the Python side found work after all, or settled). */
+void hs_reopen(void) { hs_begin(INT64_MIN); }
+
+/* The earliest sim deadline of a waiting thread or an armed timer (NO_DEADLINE: none). */
+int64_t hs_next_deadline(void) {
+    pthread_mutex_lock(&mu);
+    int64_t d = NO_DEADLINE;
+    for (tstate *th = threads; th; th = th->next) {
+        if (th->waiting && !th->released && th->deadline < d)
+            d = th->deadline;
+    }
+    for (int i = 0; i < MAX_TIMERS; i++) {
+        if (timers[i].fd && timers[i].deadline < d)
+            d = timers[i].deadline;
+    }
+    pthread_mutex_unlock(&mu);
+    return d;
+}
+
+/* Whether some waiting thread waits for descriptors (MAVLink arrives at every phase: no lookahead). */
+int hs_waits_for_io(void) {
+    pthread_mutex_lock(&mu);
+    int r = 0;
+    for (tstate *th = threads; th; th = th->next)
+        r |= th->waiting && th->nfds > 0;
+    pthread_mutex_unlock(&mu);
+    return r;
+}
+
+/* 1 when thread `self` (a pthread_t, Python's thread ident) is inside a wait that has not ended. */
+int hs_thread_waiting(uint64_t self) {
+    pthread_mutex_lock(&mu);
+    int r = 0;
+    for (tstate *th = threads; th; th = th->next) {
+        if ((uint64_t)th->self == self) {
+            r = th->waiting && !th->released;
+            break;
+        }
+    }
+    pthread_mutex_unlock(&mu);
+    return r;
+}
+
+uint64_t hs_sent(void) { return __atomic_load_n(&sent, __ATOMIC_ACQUIRE); }
+
+uint64_t hs_generation(void) {
+    pthread_mutex_lock(&mu);
+    uint64_t g = generation;
+    pthread_mutex_unlock(&mu);
+    return g;
+}
+
+void hs_poke(void) {
+    pthread_mutex_lock(&mu);
+    poke_locked();
+    pthread_mutex_unlock(&mu);
+}
+
+/* Block (wall clock, at most timeout_ns) until something changed since generation `g`. */
+void hs_wait_change(uint64_t g, int64_t timeout_ns) {
+    struct timespec ts;
+    real_clock_gettime(CLOCK_MONOTONIC, &ts);
+    int64_t until = ts_ns(&ts) + timeout_ns;
+    ts.tv_sec = until / 1000000000LL;
+    ts.tv_nsec = until % 1000000000LL;
+    pthread_mutex_lock(&mu);
+    while (generation == g) {
+        if (pthread_cond_timedwait(&changed, &mu, &ts) == ETIMEDOUT)
+            break;
+    }
+    pthread_mutex_unlock(&mu);
+}
+
+/* The run is over: every wait ends now and later ones return at once. */
+void hs_close(void) {
+    pthread_mutex_lock(&mu);
+    closed = 1;
+    gate_open = 1;
+    for (tstate *th = threads; th; th = th->next) {
+        if (th->waiting && !th->released)
+            release_locked(th, 1);
+    }
+    pthread_mutex_unlock(&mu);
+}
+
+/* A description of every thread, for diagnostics: "tracked waiting released pending nfds deadline;" */
+int hs_describe(char *out, int cap) {
+    pthread_mutex_lock(&mu);
+    int n = 0;
+    out[0] = 0;
+    for (tstate *th = threads; th && n < cap - 80; th = th->next) {
+        n += snprintf(out + n, (size_t)(cap - n), "%s%s%s%s fds=%d deadline=%lld;", th->tracked ? "lib" : "caller",
+                      th->waiting ? " waiting" : " busy", th->released ? " released" : "", th->pending ? " pending" : "",
+                      th->nfds, (long long)(th->deadline == NO_DEADLINE ? -1 : th->deadline));
+    }
+    pthread_mutex_unlock(&mu);
+    return n;
+}
+
+/* -- GOT patching ----------------------------------------------------------------------------------- */
+
+typedef struct {
+    const char *name;
+    void *fn;
+} hook;
+
+static const hook hooks[] = {
+    {"clock_gettime", (void *)hs_clock_gettime},
+    {"gettimeofday", (void *)hs_gettimeofday},
+    {"time", (void *)hs_time},
+    {"nanosleep", (void *)hs_nanosleep},
+    {"pthread_cond_init", (void *)hs_cond_init},
+    {"pthread_cond_destroy", (void *)hs_cond_destroy},
+    {"pthread_cond_wait", (void *)hs_cond_wait},
+    {"pthread_cond_timedwait", (void *)hs_cond_timedwait},
+    {"pthread_cond_signal", (void *)hs_cond_signal},
+    {"pthread_cond_broadcast", (void *)hs_cond_broadcast},
+    {"poll", (void *)hs_poll},
+    {"epoll_wait", (void *)hs_epoll_wait},
+    {"select", (void *)hs_select},
+    {"recv", (void *)hs_recv},
+    {"recvfrom", (void *)hs_recvfrom},
+    {"recvmmsg", (void *)hs_recvmmsg},
+    {"accept", (void *)hs_accept},
+    {"send", (void *)hs_send},
+    {"sendto", (void *)hs_sendto},
+    {"sendmsg", (void *)hs_sendmsg},
+    {"sendmmsg", (void *)hs_sendmmsg},
+    {"timerfd_create", (void *)hs_timerfd_create},
+    {"timerfd_settime", (void *)hs_timerfd_settime},
+    {"close", (void *)hs_close_fd},
+    {"syscall", (void *)hs_syscall},
+    {"pthread_create", (void *)hs_pthread_create},
+};
+
+static void *hook_for(const char *name) {
+    for (size_t i = 0; i < sizeof hooks / sizeof hooks[0]; i++) {
+        if (strcmp(hooks[i].name, name) == 0)
+            return hooks[i].fn;
+    }
+    return NULL;
+}
+
+/* ld.so relocates the pointers of a loaded object's dynamic section on most systems; not on all. */
+static uintptr_t dyn_ptr(ElfW(Addr) base, ElfW(Addr) p) { return p < base ? base + p : p; }
+
+static void patch_rela(ElfW(Addr) base, const ElfW(Rela) *rel, size_t count, const ElfW(Sym) *symtab,
+                       const char *strtab) {
+    long page = sysconf(_SC_PAGESIZE);
+    for (size_t i = 0; i < count; i++) {
+        unsigned type = (unsigned)ELF64_R_TYPE(rel[i].r_info);
+        if (type != R_X86_64_JUMP_SLOT && type != R_X86_64_GLOB_DAT)
+            continue;
+        const char *name = strtab + symtab[ELF64_R_SYM(rel[i].r_info)].st_name;
+        void *fn = hook_for(name);
+        if (!fn)
+            continue;
+        void **slot = (void **)(base + rel[i].r_offset);
+        uintptr_t pg = (uintptr_t)slot & ~(uintptr_t)(page - 1);
+        if (mprotect((void *)pg, (size_t)page, PROT_READ | PROT_WRITE) != 0)
+            continue;
+        *slot = fn;
+        patched_count++;
+    }
+}
+
+static const char *patch_target;
+
+static int patch_one(struct dl_phdr_info *info, size_t size, void *data) {
+    (void)size;
+    (void)data;
+    if (!info->dlpi_name || !strstr(info->dlpi_name, patch_target))
+        return 0;
+    for (int i = 0; i < info->dlpi_phnum; i++) {
+        if (info->dlpi_phdr[i].p_type != PT_DYNAMIC)
+            continue;
+        const ElfW(Dyn) *dyn = (const ElfW(Dyn) *)(info->dlpi_addr + info->dlpi_phdr[i].p_vaddr);
+        const ElfW(Rela) *jmprel = NULL, *rela = NULL;
+        size_t jmpsz = 0, relasz = 0;
+        const ElfW(Sym) *symtab = NULL;
+        const char *strtab = NULL;
+        for (; dyn->d_tag != DT_NULL; dyn++) {
+            switch (dyn->d_tag) {
+            case DT_JMPREL: jmprel = (const ElfW(Rela) *)dyn_ptr(info->dlpi_addr, dyn->d_un.d_ptr); break;
+            case DT_PLTRELSZ: jmpsz = dyn->d_un.d_val; break;
+            case DT_RELA: rela = (const ElfW(Rela) *)dyn_ptr(info->dlpi_addr, dyn->d_un.d_ptr); break;
+            case DT_RELASZ: relasz = dyn->d_un.d_val; break;
+            case DT_SYMTAB: symtab = (const ElfW(Sym) *)dyn_ptr(info->dlpi_addr, dyn->d_un.d_ptr); break;
+            case DT_STRTAB: strtab = (const char *)dyn_ptr(info->dlpi_addr, dyn->d_un.d_ptr); break;
+            }
+        }
+        if (!symtab || !strtab)
+            return 0;
+        if (jmprel)
+            patch_rela(info->dlpi_addr, jmprel, jmpsz / sizeof(ElfW(Rela)), symtab, strtab);
+        if (rela)
+            patch_rela(info->dlpi_addr, rela, relasz / sizeof(ElfW(Rela)), symtab, strtab);
+        return 1;
+    }
+    return 0;
+}
+
+/* Route the time, wait, I/O and thread calls of the loaded library whose path contains `target` here.
+ * Returns how many GOT entries were rewritten (0: not loaded, or nothing to patch). Idempotent. */
+int hs_patch(const char *target) {
+    patch_target = target;
+    patched_count = 0;
+    dl_iterate_phdr(patch_one, NULL);
+    return patched_count;
+}

@@ -1,0 +1,33 @@
+"""A DroneKit script that answers every answer at once, in the style of DroneKit's performance_test.py: a
+COMMAND_ACK listener sends the next MAV_CMD_DO_SET_ROI the moment an ACK arrives, for 10 s of sim time, and
+prints how many round trips it made and the shortest and longest interval between two ACKs."""
+
+import itertools
+import sys
+import time
+
+from dronekit import connect
+from pymavlink import mavutil
+
+vehicle = connect(sys.argv[1] if len(sys.argv) > 1 else "tcp:127.0.0.1:5760", wait_ready=True)
+stamps: list[float] = []
+
+
+def send() -> None:
+    msg = vehicle.message_factory.command_long_encode(1, 1, mavutil.mavlink.MAV_CMD_DO_SET_ROI, 0, 0, 0, 0, 0, 0, 0, 0)
+    vehicle.send_mavlink(msg)
+
+
+@vehicle.on_message("COMMAND_ACK")
+def listener(_vehicle: object, _name: str, _message: object) -> None:
+    stamps.append(time.monotonic())
+    send()
+
+
+start = time.monotonic()
+send()
+for _ in range(10):
+    time.sleep(1)
+vehicle.close()
+gaps = [b - a for a, b in itertools.pairwise(stamps)]
+print(f"acks {len(stamps)} in {time.monotonic() - start:.3f} s, gaps {min(gaps):.3f} to {max(gaps):.3f} s")

@@ -1,0 +1,64 @@
+"""Nothing a script does stops the clock for good (issue 22): scripts that never go idle, a client that answers
+every answer at once, and a MAVSDK connect that waits for MAVSDK's own time-out all end at the sim time they
+would on a real vehicle, through ``harness run``."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from harness.pytest_plugin import run_harness
+
+pytestmark = pytest.mark.sim
+SCRIPTS = Path(__file__).resolve().parent / "scripts"
+
+
+def test_a_script_that_polls_the_clock_without_sleeping_ends_on_time(tmp_path: Path) -> None:
+    run = run_harness(tmp_path / "run", SCRIPTS / "poll_clock.py", vehicles=1, duration_s=30)
+    assert run.ok, run.message
+    out = run.mission_output(0)
+    assert "time.time waited until 5.000 s" in out, out
+    assert "time.monotonic waited until 7.000 s" in out, out
+    assert run.summary["sim_time_s"] < 7.5  # the run ended with the script, not at the duration limit
+
+
+def test_a_loop_that_never_idles_and_a_thread_that_only_sends_see_time_pass(tmp_path: Path) -> None:
+    run = run_harness(tmp_path / "run", SCRIPTS / "never_idle.py", vehicles=1, duration_s=30)
+    assert run.ok, run.message
+    out = run.mission_output(0)
+    assert re.search(r"event loop: 3 s of sim passed after \d+ turns at 3\.0\d\d s", out), out
+    assert re.search(r"sender: \d+ datagrams, ended at 5\.0\d\d s", out), out
+
+
+def test_a_command_ack_ping_pong_runs_at_the_loop_rate_in_sim_time(tmp_path: Path) -> None:
+    """DroneKit's performance_test.py in our own words: a COMMAND_ACK listener that sends the next command at
+    once. It runs its 10 s of sim and exits 0; the vehicle answers at most 8 datagrams per 4 ms loop, so the
+    round trips go on at a bounded rate in sim time (before: the run was dropped, "stalled: no END-TICK-0")."""
+    pytest.importorskip("dronekit", reason="dronekit2 is in the dev extra")
+    run = run_harness(
+        tmp_path / "run",
+        SCRIPTS / "ack_pingpong_dronekit.py",
+        vehicles=1,
+        duration_s=60,
+        extra=["--firmware", "ardupilot"],
+    )
+    assert run.ok, run.message
+    out = run.mission_output(0)
+    m = re.search(r"acks (\d+) in (\d+\.\d+) s, gaps (\d+\.\d+) to (\d+\.\d+) s", out)
+    assert m, out
+    acks, took, longest = int(m.group(1)), float(m.group(2)), float(m.group(4))
+    print(f"FIGURE ack ping-pong: {acks} round trips in {took} s of sim, longest gap {longest} s")
+    assert 10.0 <= took < 10.1
+    assert 10 * 50 < acks <= 10 * 9 * 50  # more than one per 20 ms phase, at most 9 (8 in a loop + the next step)
+    assert longest <= 0.02
+
+
+def test_a_mavsdk_connect_that_never_succeeds_times_out_on_sim_time(tmp_path: Path) -> None:
+    """MAVSDK-Python's show_debug_output.py in our own words: asyncio.wait_for(drone.connect(
+    "invalid://bad:connection"), timeout=8) prints "Timed out" after 8 s, as against a real PX4 (before: the
+    clock stopped at 0.004 s and the watchdog dropped the script after 30 s)."""
+    run = run_harness(tmp_path / "run", SCRIPTS / "connect_timeout.py", vehicles=1, duration_s=30)
+    assert run.ok, run.message
+    assert "Timed out after 8.000 s" in run.mission_output(0), run.mission_output(0)
