@@ -17,6 +17,7 @@ import os
 import runpy
 import sys
 import threading
+import time
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -228,11 +229,13 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     rt.wait_first_phase()
     code = run_script(spec.script, spec.args)
     if code == 0:
-        for t in _script_threads():  # a normal end waits for the script's own threads, as Python does
-            t.join()
+        for t in _script_threads():  # a normal end waits for the script's own threads, as Python does,
+            while t.is_alive():  # looking at a phase (a sim-time wait), not whenever the OS ran this thread
+                time.sleep(rt.phase_period_ns / NS_PER_S)
     clock.script_done = True
     clock.exit_code = code
     rt.thread_done()  # the phase ends once the library threads are idle too, and answers BYE (the clock thread)
+    rt.want_phase()  # should this be between phases after all: the channel calls the mission once more
     if not clock.said_bye.acquire(True, BYE_WAIT_S):
         try:
             client.close(f"script exited with {code}", code)

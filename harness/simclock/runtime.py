@@ -538,6 +538,11 @@ class SimRuntime:
         else:
             self._unlock(w)
 
+    def want_phase(self) -> None:
+        """Ask the channel for a phase 0 (WAKE), once between two phases."""
+        with self._mu:
+            self._want_phase_locked()
+
     def _want_phase_locked(self) -> None:
         if not self._wake_requested and self.request_phase is not None:
             self._wake_requested = True

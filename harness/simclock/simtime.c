@@ -210,6 +210,17 @@ static tstate *me(void) {
 static int sim_wait(tstate *t, const struct pollfd *fds, int nfds, int64_t deadline, const void *addr, int locked) {
     if (!locked)
         pthread_mutex_lock(&mu);
+    if (closed) {
+        /* The run is over and the process about to end: wait a little on the real clock (a spurious wake-up for
+         * condition variables and futexes, which both allow one) so that no thread spins meanwhile. */
+        pthread_mutex_unlock(&mu);
+        struct pollfd pf[MAX_FDS];
+        int n = nfds > MAX_FDS ? MAX_FDS : nfds;
+        if (n)
+            memcpy(pf, fds, (size_t)n * sizeof *pf);
+        real_poll(pf, (nfds_t)n, 10);
+        return deadline != NO_DEADLINE;
+    }
     if (nfds > MAX_FDS)
         nfds = MAX_FDS;
     t->nfds = nfds;
@@ -379,7 +390,7 @@ static int cond_wait(pthread_cond_t *c, pthread_mutex_t *m, int64_t deadline) {
     pthread_mutex_unlock(m);
     int timed_out = sim_wait(t, NULL, 0, deadline, c, 1);
     pthread_mutex_lock(m);
-    return timed_out ? ETIMEDOUT : 0;
+    return timed_out && deadline != NO_DEADLINE ? ETIMEDOUT : 0; /* an untimed wait never times out */
 }
 
 static int hs_cond_wait(pthread_cond_t *c, pthread_mutex_t *m) { return cond_wait(c, m, NO_DEADLINE); }
@@ -683,7 +694,7 @@ static long futex_wait(uint32_t *addr, uint32_t val, int64_t deadline) {
         errno = EAGAIN;
         return -1;
     }
-    if (sim_wait(t, NULL, 0, deadline, addr, 1)) {
+    if (sim_wait(t, NULL, 0, deadline, addr, 1) && deadline != NO_DEADLINE) {
         errno = ETIMEDOUT;
         return -1;
     }
