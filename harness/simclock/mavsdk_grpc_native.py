@@ -690,6 +690,24 @@ async def start_backend(native: Native, url: str, sysid: int, compid: int) -> Ba
     return backend
 
 
+async def _version_known(backend: Backend, tries: int = 50, every_s: float = 0.02) -> None:
+    """Wait (sim time, at most ``tries`` × ``every_s``) until the autopilot's version has come, as mavsdk_server
+    has it by the time a script calls ``info.get_version()`` after connecting (MAVSDK-Python's
+    firmware_version.py does so at once). The native Info plugin asks for it when it is made; made at the
+    script's first call, it answered INFORMATION_NOT_RECEIVED_YET."""
+    try:
+        info = backend.plugin("info")
+    except NotAvailableNatively:
+        return
+    for _ in range(tries):
+        try:
+            await info.get_version()
+            return
+        except Exception:
+            await asyncio.sleep(every_s)
+    log.debug("mavsdk (gRPC API on the native core): the autopilot sent no version within %.1f s", tries * every_s)
+
+
 def install(rewrite_url: Callable[[str], str]) -> None:
     """Make ``mavsdk_grpc.System`` run on the native core (idempotent). ``rewrite_url`` points a script's
     connection URL at its vehicle (``mavsdk_compat._for_vehicle``)."""
@@ -726,6 +744,7 @@ def install(rewrite_url: Callable[[str], str]) -> None:
         log.info("mavsdk (gRPC API on the native core): connecting to %s", url)
         backend = await start_backend(native, url, self._sysid, self._compid)
         self._harness_backend = backend
+        await _version_known(backend)
         manager = _PluginManager(NativeChannel(backend))
         self._plugins = {name: cls(manager) for name, cls in plugins.items()}
 
