@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
+import re
 import sys
 import threading
 from collections.abc import Callable, Mapping
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-QUIET_RERUN_LOG = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off"
+QUIET_RERUN_LOG = "warn,re_log_encoding::rrd=off,re_sdk::recording_stream=off,re_sdk::log_sink=off"
 """``RUST_LOG`` for a run (unless set): Rerun's own error lines about ``world.rrd`` are left out, because the
 run reports a recording it could not complete itself, in one line that names the file."""
 
@@ -62,8 +63,8 @@ class _Opening:
     """Opens the view on a thread: importing Rerun (pyarrow included) takes ~0.5 s of CPU, which a run
     spends while its processes start instead of before."""
 
-    def __init__(self, open_view: Callable[[], RrdRecorder | None]) -> None:
-        self.view: RrdRecorder | None = None
+    def __init__(self, open_view: Callable[[], RrdRecorder | RecordingError | None]) -> None:
+        self.view: RrdRecorder | RecordingError | None = None
         self._open = open_view
         self._given_up = threading.Event()
         self._thread = threading.Thread(target=self._run, name="open-world.rrd", daemon=True)
@@ -71,7 +72,8 @@ class _Opening:
 
     def _run(self) -> None:
         view = self._open()
-        if view is not None and self._given_up.is_set():  # the run ended while Rerun was being imported
+        if view is not None and not isinstance(view, RecordingError) and self._given_up.is_set():
+            # the run ended while Rerun was being imported
             view.close()
             view.path.unlink(missing_ok=True)
             view = None
@@ -84,7 +86,7 @@ class _Opening:
     def done(self) -> bool:
         return not self._thread.is_alive()
 
-    def wait(self) -> RrdRecorder | None:
+    def wait(self) -> RrdRecorder | RecordingError | None:
         self._thread.join()
         return self.view
 
@@ -96,13 +98,22 @@ class WorldTee:
     order once it is open, so ``world.rrd`` holds the whole run.
     """
 
-    def __init__(self, mcap: WorldRecorder, view: RrdRecorder | None, opening: _Opening | None = None) -> None:
+    def __init__(
+        self, mcap: WorldRecorder, view: RrdRecorder | RecordingError | None, opening: _Opening | None = None
+    ) -> None:
         self.mcap = mcap
-        self.view = view
+        self.view: RrdRecorder | None = None
         self._opening = opening
         self._backlog: list[Callable[[RrdRecorder], None]] = []
         self.errors: list[RecordingError] = []
         """The recordings that could not be completed (a full disk, a view that failed), first first."""
+        self._set_view(view)
+
+    def _set_view(self, view: RrdRecorder | RecordingError | None) -> None:
+        if isinstance(view, RecordingError):  # world.rrd could not even be created (a full or read-only disk)
+            self.errors.append(view)
+            view = None
+        self.view = view
 
     def _mcap_failed(self, exc: OSError) -> NoReturn:
         """``world.mcap`` could not be written: it keeps what it holds (a valid file), the run must stop."""
@@ -119,9 +130,9 @@ class WorldTee:
             self._opened(self._opening.wait())
         self._apply(call)
 
-    def _opened(self, view: RrdRecorder | None) -> None:
+    def _opened(self, view: RrdRecorder | RecordingError | None) -> None:
         self._opening = None
-        self.view = view
+        self._set_view(view)
         backlog, self._backlog = self._backlog, []
         for call in backlog:
             self._apply(call)
@@ -212,6 +223,12 @@ class WorldTee:
         self.view = None
 
 
+def rust_os_error(exc: BaseException) -> int | None:
+    """The errno in a Rust error's text (``... (os error 28)``), or None."""
+    m = re.search(r"\(os error (\d+)\)", str(exc))
+    return int(m.group(1)) if m else None
+
+
 def open_world(
     out: Path,
     epoch_ns: int,
@@ -231,12 +248,13 @@ def open_world(
             log.warning("no live view: %s", INSTALL_HINT)
         return WorldTee(mcap, None)
 
-    def open_view() -> RrdRecorder | None:
+    def open_view() -> RrdRecorder | RecordingError | None:
+        path = out / "world.rrd"
         try:
             from harness.record.rrd import RrdRecorder
 
             return RrdRecorder(
-                out / "world.rrd",
+                path,
                 n_vehicles,
                 origin,
                 serve_port=serve_port,
@@ -246,8 +264,14 @@ def open_world(
                 min_wall_s=0.1 if serve_port is not None else 0.5,
                 events_path=out / "network-events.jsonl",
             )
-        except Exception:
-            log.warning("world.rrd (the 3D view) could not be opened; the run goes on without it", exc_info=True)
+        except OSError as exc:
+            return RecordingError.of(path, exc)
+        except Exception as exc:
+            log.debug("world.rrd could not be opened", exc_info=True)
+            os_errno = rust_os_error(exc)
+            if os_errno is not None:  # Rerun's file sink wraps the OS error in a RuntimeError's text
+                return RecordingError.of(path, OSError(os_errno, os.strerror(os_errno)))
+            log.warning("world.rrd (the 3D view) could not be opened (%s); the run goes on without it", exc)
             return None
 
     if serve_port is not None:

@@ -156,6 +156,28 @@ def test_a_view_that_cannot_write_its_file_is_a_recording_the_run_could_not_comp
     assert read_topics(tmp_path / "world.mcap")["/vehicle/0/pose"]
 
 
+@pytest.mark.skipif(not sink.rerun_available(), reason="needs Rerun")
+def test_a_view_that_cannot_even_create_its_file_is_one_recording_error_not_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """CI, 300 kB of tmpfs: the disk was full before Rerun had been imported, so creating world.rrd failed
+    (Rerun raises a RuntimeError ending in '(os error 28)'). The run must end on one line naming the file,
+    not log a warning with a traceback: here world.rrd is a directory, which fails the same way (os error 21)."""
+    (tmp_path / "world.rrd").mkdir()
+    world = sink.open_world(tmp_path, 0, 1, (47.0, 8.0, 400.0))
+    world.vehicle(SAMPLE)
+    world.close()
+    (err,) = world.errors
+    assert err.path == tmp_path / "world.rrd"
+    assert str(err).startswith(f"could not write {tmp_path / 'world.rrd'}: Is a directory"), str(err)
+    assert not [r for r in caplog.records if r.levelno >= 30], caplog.text
+
+
+def test_rust_os_errors_are_read_from_the_text() -> None:
+    assert sink.rust_os_error(RuntimeError("Failed to write: No space left on device (os error 28)")) == 28
+    assert sink.rust_os_error(RuntimeError("File-writer thread shut down prematurely")) is None
+
+
 def test_a_web_viewer_port_in_use_is_one_line_before_the_run(tmp_path: Path) -> None:
     import socket
 
