@@ -504,6 +504,27 @@ static int64_t rcv_deadline(int fd) {
     return add_ns(sim_now(), (int64_t)tv.tv_sec * 1000000000LL + (int64_t)tv.tv_usec * 1000);
 }
 
+/* Traced receives: the MAVLink frames of a datagram (message ids), to see in which phase each was read. */
+static void trace_frames(const char *what, int fd, const unsigned char *b, ssize_t n) {
+    if (!trace || n <= 0)
+        return;
+    char ids[256];
+    size_t at = 0;
+    ids[0] = 0;
+    for (ssize_t i = 0; i + 10 <= n && at < sizeof ids - 16;) {
+        if (b[i] != 0xFD) {
+            i++;
+            continue;
+        }
+        unsigned id = b[i + 7] | (unsigned)b[i + 8] << 8 | (unsigned)b[i + 9] << 16;
+        at += (size_t)snprintf(ids + at, sizeof ids - at, " %u/%u", id, b[i + 4]);
+        i += 12 + b[i + 1] + ((b[i + 2] & 1) ? 13 : 0);
+    }
+    pthread_mutex_lock(&mu);
+    TRACE("%s fd=%d n=%zd%s", what, fd, n, ids);
+    pthread_mutex_unlock(&mu);
+}
+
 /* A blocking receive: try without blocking, else wait (idle) for the socket on the sim clock. */
 #define BLOCKING_RECV(fd, flags, call)                                                                    \
     do {                                                                                                  \
@@ -523,21 +544,40 @@ static int64_t rcv_deadline(int fd) {
         }                                                                                                 \
     } while (0)
 
+static ssize_t recv_traced(int fd, void *buf, size_t len, int flags) {
+    ssize_t r = recv(fd, buf, len, flags);
+    trace_frames("recv", fd, buf, r);
+    return r;
+}
+
+static ssize_t recvfrom_traced(int fd, void *buf, size_t len, int flags, struct sockaddr *a, socklen_t *al) {
+    ssize_t r = recvfrom(fd, buf, len, flags, a, al);
+    trace_frames("recv", fd, buf, r);
+    return r;
+}
+
+static int recvmmsg_traced(int fd, struct mmsghdr *v, unsigned int n, int flags) {
+    int r = recvmmsg(fd, v, n, flags, NULL);
+    for (int i = 0; i < r; i++)
+        trace_frames("recv", fd, v[i].msg_hdr.msg_iov[0].iov_base, (ssize_t)v[i].msg_len);
+    return r;
+}
+
 static ssize_t hs_recv(int fd, void *buf, size_t len, int flags) {
-#define CALL(f) recv(fd, buf, len, f)
+#define CALL(f) recv_traced(fd, buf, len, f)
     BLOCKING_RECV(fd, flags, CALL);
 #undef CALL
 }
 
 static ssize_t hs_recvfrom(int fd, void *buf, size_t len, int flags, struct sockaddr *a, socklen_t *al) {
-#define CALL(f) recvfrom(fd, buf, len, f, a, al)
+#define CALL(f) recvfrom_traced(fd, buf, len, f, a, al)
     BLOCKING_RECV(fd, flags, CALL);
 #undef CALL
 }
 
 static int hs_recvmmsg(int fd, struct mmsghdr *v, unsigned int n, int flags, struct timespec *tmo) {
     (void)tmo;
-#define CALL(f) recvmmsg(fd, v, n, f, NULL)
+#define CALL(f) recvmmsg_traced(fd, v, n, f)
     BLOCKING_RECV(fd, flags, CALL);
 #undef CALL
 }
@@ -555,38 +595,37 @@ static int hs_accept(int fd, struct sockaddr *a, socklen_t *al) {
     }
 }
 
-static void count_sent(ssize_t r) {
+/* A datagram sent (counted for the runtime's settle); traced with its first ``len`` bytes at most. */
+static void count_sent(int fd, ssize_t r, const void *b, size_t len) {
     if (r >= 0) {
         __atomic_add_fetch(&sent, 1, __ATOMIC_RELEASE);
-        if (trace) {
-            pthread_mutex_lock(&mu);
-            TRACE("send %zd", r);
-            pthread_mutex_unlock(&mu);
-        }
+        if (b)
+            trace_frames("send", fd, b, (size_t)r < len ? r : (ssize_t)len);
     }
 }
 
 static ssize_t hs_sendto(int fd, const void *b, size_t n, int fl, const struct sockaddr *a, socklen_t al) {
     ssize_t r = sendto(fd, b, n, fl, a, al);
-    count_sent(r);
+    count_sent(fd, r, b, n);
     return r;
 }
 
 static ssize_t hs_send(int fd, const void *b, size_t n, int fl) {
     ssize_t r = send(fd, b, n, fl);
-    count_sent(r);
+    count_sent(fd, r, b, n);
     return r;
 }
 
 static ssize_t hs_sendmsg(int fd, const struct msghdr *m, int fl) {
     ssize_t r = sendmsg(fd, m, fl);
-    count_sent(r);
+    count_sent(fd, r, m->msg_iovlen ? m->msg_iov[0].iov_base : NULL, m->msg_iovlen ? m->msg_iov[0].iov_len : 0);
     return r;
 }
 
 static int hs_sendmmsg(int fd, struct mmsghdr *v, unsigned int n, int fl) {
     int r = sendmmsg(fd, v, n, fl);
-    count_sent(r);
+    for (int i = 0; i < r; i++)
+        count_sent(fd, (ssize_t)v[i].msg_len, v[i].msg_hdr.msg_iov[0].iov_base, v[i].msg_hdr.msg_iov[0].iov_len);
     return r;
 }
 

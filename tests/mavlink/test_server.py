@@ -12,10 +12,11 @@ import time
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import FlightMode
+from harness.autopilot.mavlink.server import DATAGRAMS_PER_LOOP
 from harness.autopilot.mavlink.telemetry import SENSOR_GPS, SENSOR_GYRO, SENSOR_PREARM
 from harness.autopilot.mavlink.transport import DATAGRAM_MAX, GREET_NS, pack_frames
 from harness.autopilot.mavlink.version import CAPABILITIES
-from harness.core.endpoints import LISTEN_HELLO_WALL
+from harness.core.endpoints import LISTEN_HELLO, LISTEN_HELLO_WALL
 from tests.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
@@ -345,3 +346,39 @@ def test_an_announced_mavsdk_port_is_greeted_until_it_answers(gcs: Gcs, idle_rig
         assert "GLOBAL_POSITION_INT" in kinds and kinds.count("HEARTBEAT") <= 3, kinds.count("HEARTBEAT")
     finally:
         listener.close()
+
+
+def test_a_missions_burst_waits_for_the_next_loop_however_long_phase_0_lasts(gcs: Gcs, idle_rig: Rig) -> None:
+    """A mission on sim time (its socket announced with ``LISTEN_HELLO``) gets ``DATAGRAMS_PER_LOOP`` datagrams
+    handled per autopilot loop; the rest wait for the next step, also after seconds of wall time (a phase 0 on a
+    loaded machine: handling them on a wall-clock limit flew a mission upload a tick early, another flight). A
+    ground station beside it is answered at once meanwhile."""
+    vehicle = idle_rig.server.links[0].local_address
+    mission = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        mission.bind(("127.0.0.1", 0))
+        mission.sendto(LISTEN_HELLO, vehicle)
+        mav = mavlink2.MAVLink(None, 245, 190)
+        commands = [50_000 + k for k in range(DATAGRAMS_PER_LOOP + 4)]
+        for c in commands:
+            mission.sendto(mav.command_long_encode(1, 1, c, 0, 0, 0, 0, 0, 0, 0, 0).pack(mav), vehicle)
+
+        def acks(wait_s: float) -> list[int]:
+            parser, got = mavlink2.MAVLink(None), []
+            mission.settimeout(0.05)
+            deadline = time.monotonic() + wait_s
+            while time.monotonic() < deadline:
+                try:
+                    data = mission.recv(65535)
+                except TimeoutError:
+                    continue
+                got += [m.command for m in parser.parse_buffer(data) or [] if m.get_type() == "COMMAND_ACK"]
+            return got
+
+        assert acks(1.0) == commands[:DATAGRAMS_PER_LOOP]
+        assert gcs.command(31000).result == M.MAV_RESULT_UNSUPPORTED  # the ground station does not wait
+        assert acks(0.5) == [], "the rest must wait for the autopilot's next loop, not a wall-clock limit"
+        idle_rig.step_s(0.02)
+        assert acks(0.5) == commands[DATAGRAMS_PER_LOOP:]
+    finally:
+        mission.close()

@@ -108,10 +108,6 @@ phase 0 forever; a mission upload or a burst of setpoints is far below it. Count
 the same messages are handled in the same loop at any pace."""
 
 
-DEFERRED_WALL_LIMIT_NS = 500_000_000
-"""What waits for the next step is handled anyway after this much wall time (the sim is paused)."""
-
-
 class MavlinkServer:
     """PX4-dialect MAVLink endpoint of one vehicle (system id ``vehicle + 1``, component 1).
 
@@ -192,7 +188,6 @@ class MavlinkServer:
         self._loop_t = -1
         self._loop_datagrams = 0
         self._deferred: list[tuple[int, bytes, tuple[str, int]]] = []
-        self._deferred_wall_ns = 0
         """What came after this loop's share: handled at the next step (``DATAGRAMS_PER_LOOP``)."""
         self.next_wake_ns = 0
         """Wall time (monotonic ns) at which the hub must call :meth:`service` at the latest."""
@@ -297,8 +292,10 @@ class MavlinkServer:
             self._service(now)
 
     def _service(self, now: int) -> None:
-        if self._deferred and not self._stepping and now - self._deferred_wall_ns > DEFERRED_WALL_LIMIT_NS:
-            # the sim stands still (paused): what waited for the next step is handled on the wall clock
+        if self._deferred and not self._stepping and not self._sim_peers():
+            # the peers on sim time are gone (a mission's TCP connection closed): nothing waits for a step now.
+            # Never on a wall-clock limit while they are there: a phase 0 that takes long on a loaded machine
+            # would let their datagrams run a loop early (a mission upload a tick early, another flight)
             waiting, self._deferred = self._deferred, []
             for k, data, addr in waiting:
                 self._handle(k, data, addr, now)
@@ -362,9 +359,7 @@ class MavlinkServer:
                 self._send_all(self.params.tick(), now)
             self.links[link].send(data, addr)
             return
-        if self._deferred or not self._in_budget():
-            if not self._deferred:
-                self._deferred_wall_ns = now
+        if self.links[link].is_sim_peer(addr) and (self._deferred or not self._in_budget()):
             self._deferred.append((link, data, addr))
             if self._ring_at is not None:
                 self._ring_at(self._t_ns + 1)
@@ -419,9 +414,9 @@ class MavlinkServer:
     def _in_budget(self) -> bool:
         """Count one datagram against this loop's share (``DATAGRAMS_PER_LOOP``); False once it is used up.
 
-        Only while a mission that lives on sim time talks to this vehicle: it alone can hold phase 0 with a
-        ping-pong, and its runs step the vehicle. A ground station alone (``harness sitl``, a paused or idle
-        vehicle) is answered at once, whatever it sends."""
+        Only for what a peer that lives on sim time (a mission) sends: it alone can hold phase 0 with a
+        ping-pong, and its runs step the vehicle. A ground station (``harness sitl``, a paused or idle vehicle,
+        QGroundControl beside a run's missions) is answered at once, whatever it sends."""
         if not self._sim_peers():
             return True
         t = self._loop_t_ns()

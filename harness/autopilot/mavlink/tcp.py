@@ -231,6 +231,10 @@ class TcpLink:
         with self._lock:
             return bool(self._clients)
 
+    def is_sim_peer(self, addr: Address) -> bool:
+        """Whether the clients of this link live on sim time (the run's missions)."""
+        return self.sim_clients
+
     def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
         """Every connected client; none for wall-clock traffic (``sim_peers`` False) when the clients are on
         sim time."""

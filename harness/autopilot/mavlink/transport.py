@@ -121,6 +121,7 @@ class Link(Protocol):
     def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]: ...
     @property
     def has_sim_peers(self) -> bool: ...
+    def is_sim_peer(self, addr: Address) -> bool: ...
     @property
     def greeting(self) -> bool: ...
     def greetings(self, now_ns: int) -> list[Address]: ...
@@ -229,6 +230,10 @@ class UdpLink:
     def has_sim_peers(self) -> bool:
         """Whether a peer that lives on sim time (a mission's Python socket) listens on this link."""
         return bool(self._sim_peers)
+
+    def is_sim_peer(self, addr: Address) -> bool:
+        """Whether ``addr`` is a mission's socket on sim time (it announced itself with ``LISTEN_HELLO``)."""
+        return addr in self._sim_peers
 
     def peers(self) -> list[Address]:
         return list(self._peers)
