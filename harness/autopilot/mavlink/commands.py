@@ -120,7 +120,8 @@ class CommandService:
         self._handlers.update(handlers)
 
     def handle(self, cmd: CommandIn, sender: tuple[object, ...], now_ns: int) -> CommandOutcome:
-        """Run one command from ``sender`` (origin address and ids) at wall time ``now_ns``."""
+        """Run one command from ``sender`` (origin address and ids) at ``now_ns`` on the sender's clock (sim time
+        for a mission, the wall clock for a ground station): it tells a retransmission from a new command."""
         last = self._last.get(sender)
         if last is not None and last[0] == cmd.key and now_ns - last[1] < RETRANSMIT_WINDOW_NS:
             retransmit = cmd.confirmation > 0 or (cmd.frame is not None and now_ns - last[1] < 1_000_000_000)

@@ -515,7 +515,11 @@ class MavlinkServer:
 
     def _command(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
         cmd = CommandIn.from_message(m)
-        outcome = self.commands.handle(cmd, (origin.link, origin.addr, origin.sysid, origin.compid), now)
+        # a mission's retransmission is told from a repeat by its own clock, sim time (at max speed a repeat 2 s of
+        # sim apart came 0.1 s of wall time apart and was taken for one), a ground station's by the wall clock
+        on_sim = self.links[origin.link].is_sim_peer(origin.addr)
+        sender = (origin.link, origin.addr, origin.sysid, origin.compid)
+        outcome = self.commands.handle(cmd, sender, self._loop_t_ns() if on_sim else now)
         r = outcome.result
         mav = self.codec.mav
         ack = mav.command_ack_encode(cmd.command, int(r.result), 0, 0, origin.sysid, origin.compid)
@@ -581,7 +585,7 @@ class MavlinkServer:
             outs.append(Out(mission_current(mav, state, t_ms)))
         for reached in self.api.pop_mission_reached():
             outs.append(Out(mav.mission_item_reached_encode(reached.seq & 0xFFFF)))
-        outs += self.dialect.tick(state, now)
+        outs += self.dialect.tick(state, self._peer_now(now))
         self._send_all(outs, now)
         lost = self.datalink.check(state, self._peer_now(now))
         if lost:
@@ -613,6 +617,7 @@ class MavlinkServer:
         """STATUSTEXT to everyone; the same text is not repeated within 2 s (refusals and core events)."""
         if not text:
             return
+        now = self._peer_now(now)  # a mission sees the same texts at any pace
         last = self._texts_sent.get(text)
         if last is not None and now - last < _TEXT_REPEAT_NS:
             return
