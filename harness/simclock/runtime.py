@@ -441,9 +441,14 @@ class SimRuntime:
         w = self.new_waiter()
         with self._mu:
             if not w.released:
-                self._gate_waiters.append(w)
-                if self._started:
-                    self._want_phase_locked()
+                if self._gate_open:
+                    # it opened since the caller looked: run now. (Queued, it would have stayed idle through
+                    # this whole phase — a script then started a phase late, once in ~30 runs under load.)
+                    self._release_locked(w)
+                else:
+                    self._gate_waiters.append(w)
+                    if self._started:
+                        self._want_phase_locked()
         w.lock.acquire()
         self.finish_wait(w)
 

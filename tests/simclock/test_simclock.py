@@ -9,6 +9,7 @@ import queue
 import socket
 import threading
 import time
+from typing import Any
 
 import pytest
 
@@ -173,3 +174,24 @@ def test_wall_clock_io_wakes_a_mission_left_out_by_its_lookahead(procs: Procs) -
         assert idle_phases <= 3  # while it waited, it was left out (1 s = 50 phases)
     finally:
         ch.stop()
+
+
+def test_a_gate_opened_while_a_thread_starts_waiting_for_it_lets_the_thread_run_in_that_phase() -> None:
+    """The script's main thread waits for the first phase 0 (``wait_first_phase``), and a thread whose I/O came
+    between phases waits for the next one. Should phase 0 open between its registering and its queueing, it
+    runs in that phase: it used to stay counted idle all through it, so the phase ended without it and a MAVSDK
+    script started a phase late (its threads created at t=0.02 s instead of 0), once in ~30 runs under load."""
+    rt = SimRuntime(epoch_ns=0, phase_period_ns=20_000_000)
+    register = rt.new_waiter
+
+    def register_then_phase_0_opens(*args: Any, **kwargs: Any) -> Any:
+        w = register(*args, **kwargs)
+        with rt._mu:  # the clock thread, right here: BEGIN-TICK-0 opens the gate
+            rt._open_gate_locked()
+        return w
+
+    rt.new_waiter = register_then_phase_0_opens  # type: ignore[method-assign]
+    waiter = threading.Thread(target=rt.wait_gate, daemon=True)
+    waiter.start()
+    waiter.join(2.0)
+    assert not waiter.is_alive(), "the thread waits for a phase that is already open"
