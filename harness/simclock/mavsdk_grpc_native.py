@@ -700,11 +700,15 @@ async def _version_known(backend: Backend, tries: int = 50, every_s: float = 0.0
     except NotAvailableNatively:
         return
     for _ in range(tries):
+        # look after a phase, never in the phase the request went out in: whether its answer had been read by
+        # then depended on the order of this thread and MAVSDK's (in 1 of 3 runs the script's next requests went
+        # out a phase later); a phase on, the answer of the last one is read, whatever that order
+        await asyncio.sleep(every_s)
         try:
             await info.get_version()
             return
         except Exception:
-            await asyncio.sleep(every_s)
+            pass
     log.debug("mavsdk (gRPC API on the native core): the autopilot sent no version within %.1f s", tries * every_s)
 
 
