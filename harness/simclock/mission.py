@@ -224,9 +224,14 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
             pass  # the run is over; the clock thread ends the script
 
     rt.request_phase = wake
+    trace_dir = os.environ.get("HARNESS_SIMTIME_TRACE_DIR")
+    if trace_dir:  # every end of phase 0 and why each thread counted idle, beside MAVSDK's (docs/simclock.md)
+        rt.trace = open(os.path.join(trace_dir, f"simclock-{spec.vehicle}.trace"), "w")  # noqa: SIM115
     clock = _ClockThread(client, rt, hooks)
     clock.start()
     rt.wait_first_phase()
+    if rt.trace is not None:
+        rt.trace.write(f"{rt.now_ns()} script starts\n")
     code = run_script(spec.script, spec.args)
     if code == 0:
         for t in _script_threads():  # a normal end waits for the script's own threads, as Python does,

@@ -30,6 +30,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import FrameType
+from typing import TextIO
 
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.simclock.native import NO_DEADLINE as NATIVE_NO_DEADLINE
@@ -138,6 +139,8 @@ class SimRuntime:
         self._mavlink_synced = 0
         self.settle_mavlink: Callable[[], bool] | None = None
         """Waits (wall clock) until the vehicle has handled everything sent to it; False: it did not answer."""
+        self.trace: TextIO | None = None
+        """Where every phase 0 that ends is written, with why each thread counted idle (diagnostics)."""
         self.native: NativeClock | None = None
         """The C threads of a library on the sim clock (MAVSDK's core, ``native.attach``): they take part in the
         idle decision, and what they send the vehicle is settled like the script's own MAVLink."""
@@ -196,6 +199,8 @@ class SimRuntime:
                         self._gate_open = False  # the decision "idle" and closing the gate are one step
                         self._wake_requested = False
                         lookahead = self._lookahead_locked()
+                        if self.trace is not None:
+                            self._trace_close_locked(t_ns)
                         break
             if settle:
                 self._settle()
@@ -296,6 +301,29 @@ class SimRuntime:
         if native is not None and (d := native.next_deadline_ns()) != NATIVE_NO_DEADLINE:
             deadlines.append(d)
         return min(deadlines, default=NO_DEADLINE), bool(self._inbox_waiters or self._inbox_callbacks)
+
+    def _trace_close_locked(self, t_ns: int) -> None:
+        """One line per phase 0 that ended: why each thread counted idle (``HARNESS_SIMTIME_TRACE_DIR``)."""
+        why = []
+        for t in threading.enumerate():
+            ident = t.ident
+            if t.name.startswith(INFRA_THREAD_PREFIX) or ident is None:
+                continue
+            if ident in self._done_threads:
+                state = "done"
+            elif ident in self._idle:
+                state = "waits"
+            elif self.native is not None and self.native.thread_waiting(ident):
+                state = "in-mavsdk"
+            elif isinstance(t, threading._DummyThread) or not self._is_script_thread(t):
+                state = "outside"
+            else:
+                frame = sys._current_frames().get(ident)
+                state = f"at {frame.f_code.co_name}" if frame is not None else "ended"
+            why.append(f"{t.name}={state}")
+        assert self.trace is not None
+        self.trace.write(f"{t_ns} close {' '.join(why)}\n")
+        self.trace.flush()
 
     def busy_threads(self) -> list[str]:
         """Where every thread that keeps phase 0 from ending is (diagnostics)."""
