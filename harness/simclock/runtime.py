@@ -465,26 +465,29 @@ class SimRuntime:
             return self._gate_open
 
     def wait_gate(self) -> None:
-        """Block the calling thread (counted idle) until the next phase 0 opens the gate."""
-        w = self.new_waiter()
+        """Block the calling thread (counted idle) until the next phase 0 opens the gate.
+
+        Counted idle and queued on the gate in one step: a thread counted idle but not yet queued let the
+        phase that was just opening end without it (the script's main thread then started a phase late, its
+        MAVSDK threads made at t=0.02 s instead of 0, in about 1 run of 30 under load)."""
+        lock = _thread.allocate_lock()
+        lock.acquire()
+        w = Waiter(_thread.get_ident(), lock, None, None)
+        self._reads.pop(w.ident, None)
         with self._mu:
-            if not w.released:
-                if self._gate_open:
-                    # it opened since the caller looked: run now. (Queued, it would have stayed idle through
-                    # this whole phase — a script then started a phase late, once in ~30 runs under load.)
-                    self._release_locked(w)
-                else:
-                    self._gate_waiters.append(w)
-                    if self._started:
-                        self._want_phase_locked()
+            if self.closed or self._gate_open:
+                return  # the run is over, or phase 0 is on: run now
+            self._idle[w.ident] = w
+            self._by_lock[id(lock)] = w
+            self._gate_waiters.append(w)
+            if self._started:
+                self._want_phase_locked()
+        self._poke()
         w.lock.acquire()
         self.finish_wait(w)
 
     def wait_first_phase(self) -> None:
         """The main thread, before running the script: wait for the first phase 0."""
-        with self._mu:
-            if self._gate_open:
-                return
         self.wait_gate()
 
     def thread_done(self, ident: int | None = None) -> None:

@@ -9,7 +9,6 @@ import queue
 import socket
 import threading
 import time
-from typing import Any
 
 import pytest
 
@@ -176,22 +175,26 @@ def test_wall_clock_io_wakes_a_mission_left_out_by_its_lookahead(procs: Procs) -
         ch.stop()
 
 
-def test_a_gate_opened_while_a_thread_starts_waiting_for_it_lets_the_thread_run_in_that_phase() -> None:
+def test_a_thread_waiting_for_the_gate_is_never_counted_idle_without_being_queued_on_it() -> None:
     """The script's main thread waits for the first phase 0 (``wait_first_phase``), and a thread whose I/O came
-    between phases waits for the next one. Should phase 0 open between its registering and its queueing, it
-    runs in that phase: it used to stay counted idle all through it, so the phase ended without it and a MAVSDK
-    script started a phase late (its threads created at t=0.02 s instead of 0), once in ~30 runs under load."""
+    between phases waits for the next one. It used to be counted idle first and queued on the gate a moment
+    later: a phase 0 that opened and found every thread idle in that moment ended without it, and a MAVSDK
+    script started a phase late (its threads made at t=0.02 s instead of 0, about 1 run in 30 under load).
+    Here the clock thread runs exactly in that moment: phase 0 opens, and ends if the waiter counts idle."""
     rt = SimRuntime(epoch_ns=0, phase_period_ns=20_000_000)
-    register = rt.new_waiter
+    ended_without_it: list[bool] = []
 
-    def register_then_phase_0_opens(*args: Any, **kwargs: Any) -> Any:
-        w = register(*args, **kwargs)
-        with rt._mu:  # the clock thread, right here: BEGIN-TICK-0 opens the gate
+    def clock_thread_runs_now() -> None:
+        with rt._mu:
             rt._open_gate_locked()
-        return w
+            if rt._idle:  # the waiter counts idle: this phase 0 is over
+                rt._gate_open = False
+                ended_without_it.append(True)
 
-    rt.new_waiter = register_then_phase_0_opens  # type: ignore[method-assign]
-    waiter = threading.Thread(target=rt.wait_gate, daemon=True)
+    rt._poke = clock_thread_runs_now  # type: ignore[method-assign]
+    waiter = threading.Thread(target=rt.wait_first_phase, daemon=True)
     waiter.start()
     waiter.join(2.0)
-    assert not waiter.is_alive(), "the thread waits for a phase that is already open"
+    assert not waiter.is_alive() and not ended_without_it, "the phase ended without the thread waiting for it"
+    rt._gate_open = True
+    rt.wait_gate()  # phase 0 is on: no wait at all
