@@ -1,7 +1,8 @@
 """The precompiled packers against pymavlink's encoder, the reference: for every message id of the two dialects
 they cover, seeded random field values (extremes, zeros for the payload truncation, extension fields given or
 left to their defaults) give byte-identical frames, unsigned and signed; the sequence number and the signing
-timestamp run on across frames pymavlink makes (classes without a packer)."""
+timestamp run on across frames pymavlink makes (classes without a packer); and a vehicle's real traffic is all
+packed here, every frame equal to pymavlink's encoding of the message it carries."""
 
 from __future__ import annotations
 
@@ -16,8 +17,10 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega, common, minimal
 
-from harness.autopilot.mavlink.codec import signing_timestamp
+from harness.autopilot.mavlink import SigningConfig
+from harness.autopilot.mavlink.codec import Codec, FrameStatus, signing_timestamp
 from harness.autopilot.mavlink.packers import FrameEncoder, Signer, crc16, crc16_stdlib, packer_for
+from tests.mavlink.conftest import Gcs, Rig
 
 KEY = hashlib.sha256(b"packers").digest()
 DIALECTS = (common, ardupilotmega)
@@ -226,6 +229,21 @@ def test_sequence_and_signing_timestamp_run_on_across_pymavlink_frames() -> None
             assert all(b > a for a, b in itertools.pairwise(stamps))
 
 
+def test_codec_frames_are_pymavlink_frames_and_signed_ones_verify() -> None:
+    clock = iter(range(1_800_000_000 * 10**9, 1_900_000_000 * 10**9, 10**6))
+    now: Callable[[], int] = lambda: next(clock)  # noqa: E731
+    codec = Codec(1, signing=SigningConfig(KEY, link_id=2), unix_time_ns=now)
+    receiver = Codec(9, signing=SigningConfig(KEY), unix_time_ns=now)
+    msgs = [codec.mav.heartbeat_encode(2, 12, 129, 4 << 16, 4, 3), codec.mav.statustext_encode(6, b"Takeoff", 1, 0)]
+    frames = [codec.encode(m) for m in msgs * 3]
+    assert [d.status for f in frames for d in receiver.decode(f)] == [FrameStatus.OK] * 6
+    check = common.MAVLink(None)
+    check.signing.secret_key = KEY
+    parsed = [m for f in frames for m in check.parse_buffer(f) or []]
+    assert [m.get_seq() for m in parsed] == list(range(6)) and all(m.get_signed() for m in parsed)
+    assert codec.fallback_frames == 0
+
+
 def test_crc16_both_ways_is_pymavlinks_x25() -> None:
     rng = np.random.default_rng(1)
     for _ in range(300):
@@ -236,3 +254,56 @@ def test_crc16_both_ways_is_pymavlinks_x25() -> None:
         slow.crc = start
         slow.accumulate(data)
         assert crc16(data, start) == crc16_stdlib(data, start) == slow.crc
+
+
+@pytest.mark.sim
+def test_a_vehicles_traffic_is_all_packed_and_is_pymavlinks_encoding() -> None:
+    """A flying vehicle's streams, answers, parameters and texts: no frame through pymavlink's encoder, and
+    every frame it sent re-encodes with pymavlink (its own sequence number) to the same bytes."""
+    gcs = Gcs()
+    rig = Rig(gcs, speed=4.0).start()
+    try:
+        gcs.connect()
+        gcs.keep_raw = True
+        assert gcs.command(511, common.MAVLINK_MSG_ID_HIGHRES_IMU, 50_000).result == common.MAV_RESULT_ACCEPTED
+        assert gcs.command(511, common.MAVLINK_MSG_ID_SYSTEM_TIME, 100_000).result == common.MAV_RESULT_ACCEPTED
+        assert gcs.command(512, common.MAVLINK_MSG_ID_AUTOPILOT_VERSION).result == common.MAV_RESULT_ACCEPTED
+        gcs.send(gcs.mav.param_request_read_encode(1, 1, b"MIS_TAKEOFF_ALT", -1))
+        gcs.send(gcs.mav.ping_encode(1234, 5, 0, 0))
+        gcs.send(gcs.mav.timesync_encode(0, 42))
+        gcs.send(gcs.mav.mission_request_list_encode(1, 1, 0))
+        assert gcs.command(400, 1).result == common.MAV_RESULT_ACCEPTED
+        gcs.command(22, 0, 0, 0, float("nan"), float("nan"), float("nan"), float("nan"))
+        gcs.collect(2.5)
+    finally:
+        rig.stop()
+        gcs.close()
+    parser = common.MAVLink(None)
+    sent = [m for d in gcs.raw for m in parser.parse_buffer(d) or [] if m.get_srcSystem() == 1]
+    kinds = {m.get_type() for m in sent}
+    assert kinds >= {
+        "HEARTBEAT",
+        "ATTITUDE",
+        "ATTITUDE_QUATERNION",
+        "GLOBAL_POSITION_INT",
+        "SYS_STATUS",
+        "BATTERY_STATUS",
+        "HIGHRES_IMU",
+        "SYSTEM_TIME",
+        "AUTOPILOT_VERSION",
+        "PARAM_VALUE",
+        "PING",
+        "TIMESYNC",
+        "MISSION_COUNT",
+        "COMMAND_ACK",
+        "STATUSTEXT",
+    }, kinds
+    assert rig.server.codec.fallback_frames == 0
+    mismatched = []
+    for m in sent:
+        frame = bytes(m.get_msgbuf())
+        ref = common.MAVLink(None, srcSystem=1, srcComponent=1)
+        ref.seq = m.get_seq()
+        if m.pack(ref) != frame:
+            mismatched.append(m.get_type())
+    assert mismatched == [] and len(sent) > 100
