@@ -194,7 +194,7 @@ class FrameEncoder:
         self._fallback = fallback
         self._signer = signer
         self._seq = 0
-        self._timestamp = 1  # pymavlink's initial signing timestamp: never behind it
+        self._timestamp: int = fallback.signing.timestamp  # pymavlink's initial one (0): a clock before 2015 gives 0
         self.fallback_frames = 0
         """Frames made by pymavlink's encoder (a class without a packer, or fields that would not pack)."""
         self._key_hash: Any = None

@@ -115,20 +115,23 @@ class Reference:
         return frame
 
 
-def stepping_clock(rng: np.random.Generator) -> Callable[[], int]:
-    """A signing clock that stands still for a while (the encoder's +1 per frame runs ahead of it) and jumps."""
-    t = [signing_timestamp(1_800_000_000 * 10**9)]
+def stepping_clock(rng: np.random.Generator, unix_ns: int) -> Callable[[], int]:
+    """A signing clock from ``unix_ns`` that stands still for a while (the encoder's +1 per frame runs ahead of
+    it) and jumps; a date before 2015 (a test's ``ManualClock``) reads as signing timestamp 0 until it moves."""
+    t = [signing_timestamp(unix_ns)]
+    reads = [0]
 
     def now() -> int:
-        if rng.random() < 0.2:
+        reads[0] += 1
+        if reads[0] > 5 and rng.random() < 0.2:  # the first frames on the start time
             t[0] += int(rng.integers(1, 1000))
         return t[0]
 
     return now
 
 
-def encoders(signed: bool, seed: int) -> tuple[FrameEncoder, Reference]:
-    clock = stepping_clock(np.random.default_rng(seed))
+def encoders(signed: bool, seed: int, unix_ns: int = 1_800_000_000 * 10**9) -> tuple[FrameEncoder, Reference]:
+    clock = stepping_clock(np.random.default_rng(seed), unix_ns)
     # one clock reading per frame for both: each reads its own copy of the same sequence of readings
     readings: list[int] = []
     index = [0, 0]
@@ -202,8 +205,8 @@ def test_sequence_and_signing_timestamp_run_on_across_pymavlink_frames() -> None
     """Messages without a packer (another dialect's class) and fields that do not pack (pymavlink raises, and
     nothing advances) mixed with packed ones, past the sequence number's wrap: the same stream as pymavlink's."""
     rng = np.random.default_rng(7)
-    for signed in (False, True):
-        ours, reference = encoders(signed, seed=11)
+    for signed, unix_ns in ((False, 0), (True, 0), (True, 1_800_000_000 * 10**9)):
+        ours, reference = encoders(signed, seed=11, unix_ns=unix_ns)
         classes = message_classes(common)
         out: list[tuple[str, bytes, bytes]] = []
         fallbacks = 0
