@@ -28,11 +28,11 @@ from __future__ import annotations
 
 import binascii
 import hashlib
+import keyword
 import re
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from operator import attrgetter
 from typing import Any, Final
 
 COVERED_MODULES: Final = frozenset({"pymavlink.dialects.v20.common", "pymavlink.dialects.v20.ardupilotmega"})
@@ -93,43 +93,37 @@ def _struct_items(fmt: str) -> int:
 
 def _payload_function(cls: MessageClass) -> Callable[[Message], bytes] | None:
     """The untruncated payload of a message of ``cls``, from the class's metadata; None when that metadata
-    does not describe the class's ``struct.Struct`` (an unexpected shape: left to pymavlink)."""
+    does not describe the class's ``struct.Struct`` (an unexpected shape: left to pymavlink).
+
+    The function is generated as source, as pymavlink generates its own ``pack`` methods (and the standard
+    library its dataclasses' and named tuples' methods): one ``Struct.pack`` call reading every attribute
+    inline, ``char`` arrays as the raw bytes given, numeric arrays as their first ``n`` elements
+    (``*m.q[:4]``). For messages with arrays that is 3x faster than a loop that flattens them. The names
+    come from the dialect's generated class and are checked to be plain identifiers."""
     layout = struct.Struct(cls.unpacker.format)  # this message id's own Struct
     types = dict(zip(cls.fieldnames, cls.fieldtypes, strict=True))
-    names: list[str] = []
-    lengths: list[int] = []  # element count of a numeric array, 0 for a scalar or a char array (one bytes value)
+    args: list[str] = []
+    values = 0
     for name, n in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True):
+        if not name.isidentifier() or keyword.iskeyword(name) or not isinstance(n, int):
+            return None
         if types[name] == "char":
             if not n:
                 return None  # a single char (none in these dialects): its representation is pymavlink's business
-            names.append(f"_{name}_raw")
-            lengths.append(0)
+            args.append(f"m._{name}_raw")
+            values += 1
+        elif n:
+            args.append(f"*m.{name}[:{n}]")
+            values += n
         else:
-            names.append(name)
-            lengths.append(n)
-    if not names or sum(n or 1 for n in lengths) != _struct_items(layout.format):
+            args.append(f"m.{name}")
+            values += 1
+    if not args or values != _struct_items(layout.format):
         return None
-    pack = layout.pack
-    if len(names) == 1:
-        name, n = names[0], lengths[0]
-        if n:
-            return lambda m: pack(*getattr(m, name)[:n])
-        return lambda m: pack(getattr(m, name))
-    get = attrgetter(*names)  # a tuple of the values (more than one name)
-    if not any(lengths):
-        return lambda m: pack(*get(m))
-    plan = tuple(lengths)
-
-    def with_arrays(m: Message) -> bytes:
-        args: list[Any] = []
-        for value, n in zip(get(m), plan, strict=True):
-            if n:
-                args += value[:n]
-            else:
-                args.append(value)
-        return pack(*args)
-
-    return with_arrays
+    payload: Callable[[Message], bytes] = eval(  # see above: trusted, checked names only
+        f"lambda m: pack({', '.join(args)})", {"__builtins__": {}, "pack": layout.pack}
+    )
+    return payload
 
 
 @dataclass(frozen=True, slots=True)
