@@ -232,7 +232,7 @@ def test_sequence_and_signing_timestamp_run_on_across_pymavlink_frames() -> None
             assert all(b > a for a, b in itertools.pairwise(stamps))
 
 
-def test_codec_frames_are_pymavlink_frames_and_signed_ones_verify() -> None:
+def test_codec_frames_are_numbered_signed_and_verify() -> None:
     clock = iter(range(1_800_000_000 * 10**9, 1_900_000_000 * 10**9, 10**6))
     now: Callable[[], int] = lambda: next(clock)  # noqa: E731
     codec = Codec(1, signing=SigningConfig(KEY, link_id=2), unix_time_ns=now)
