@@ -1,6 +1,8 @@
 """MAVLink 2 codec: encode outgoing messages (sequence, optional signing) and decode datagrams.
 
-A thin, pure layer over pymavlink's generated ``common`` dialect. Each UDP datagram is decoded on its own
+A thin, pure layer over pymavlink's generated ``common`` dialect: frames are built by precompiled packers
+(``packers.py``, byte for byte pymavlink's frames), pymavlink's encoder makes the rest and every decode.
+Each UDP datagram is decoded on its own
 (a garbage datagram can never swallow the start of the next one), every frame is classified (good,
 malformed, unknown id, unsigned, badly signed) and nothing here ever raises on bad input.
 
@@ -22,6 +24,7 @@ from typing import TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from harness.autopilot.mavlink.packers import FrameEncoder, Signer
 from harness.core.errors import ScenarioError
 
 MAVLinkMessage: TypeAlias = mavlink2.MAVLink_message  # pymavlink is untyped: this is Any to mypy
@@ -132,31 +135,33 @@ class Codec:
         self._enc = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._dec = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._dec.robust_parsing = True
-        self._unix_time_ns = unix_time_ns
         self._sig: _SignatureState | None = None
         self.signing = signing
+        signer = None
         if signing is not None:
             if unix_time_ns is None:
                 raise ScenarioError("MAVLink signing needs a wall clock (unix_time_ns) for its timestamps")
             self._sig = _SignatureState(signing.key, signing_timestamp(unix_time_ns()))
             if signing.sign_outgoing:
-                self._enc.signing.secret_key = signing.key
-                self._enc.signing.link_id = signing.link_id
-                self._enc.signing.sign_outgoing = True
+                clock = unix_time_ns
+                signer = Signer(signing.key, signing.link_id, lambda: signing_timestamp(clock()))
+        self._frames = FrameEncoder(sysid, compid, self._enc, signer)
 
     @property
     def mav(self) -> mavlink2.MAVLink:
-        """The pymavlink object whose ``*_encode`` methods build messages (never used to send)."""
+        """The pymavlink object whose ``*_encode`` methods build messages (never used to send; its sequence
+        number and signing timestamp are the encoder's only while it frames a message without a packer)."""
         return self._enc
 
     def encode(self, msg: MAVLinkMessage) -> bytes:
-        """One MAVLink 2 frame with the next sequence number (signed when configured)."""
-        enc = self._enc
-        if enc.signing.sign_outgoing and self._unix_time_ns is not None:
-            enc.signing.timestamp = max(enc.signing.timestamp, signing_timestamp(self._unix_time_ns()))
-        buf: bytes = msg.pack(enc)
-        enc.seq = (enc.seq + 1) & 0xFF
-        return buf
+        """One MAVLink 2 frame with the next sequence number (signed when configured): the message's
+        precompiled packer (``packers.py``), or pymavlink's encoder for a message without one."""
+        return self._frames.encode(msg)
+
+    @property
+    def fallback_frames(self) -> int:
+        """Frames encoded so far by pymavlink's encoder instead of a precompiled packer."""
+        return self._frames.fallback_frames
 
     def decode(self, datagram: bytes) -> list[Decoded]:
         """Every frame of one datagram, classified. Never raises."""
