@@ -77,6 +77,8 @@ class Launcher:
         self._attached: list[Any] = []
         """Their MAVLink sides (with their tlog and ULog writers)."""
         self._checkpoint: Checkpoint | None = None
+        self._pacing: dict[str, float] | None = None
+        """``--speed``'s account of a run that ended normally (``_pacing``)."""
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port or 0
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
         self._tcp_sim_clients = plan.api_remote_base == 0
@@ -262,7 +264,7 @@ class Launcher:
             "tick_hz": plan.tick_hz,
             "physics_hz": plan.physics_hz,
             "phase_every": plan.phase_every,
-        }
+        } | ({"pacing": self._pacing} if self._pacing is not None else {})
 
     def toggle_pause(self) -> None:
         """Pause or resume the clock (``harness run`` does this on SIGUSR1)."""
@@ -446,9 +448,9 @@ class Launcher:
         while True:
             t_ns = phys.t_ns
             tick = phys.tick
-            if end_ns is not None and t_ns >= end_ns:
-                return RunStatus.OK, "", t_ns
-            if tree.missions_done(channel, missions, plan.vehicles):
+            if (end_ns is not None and t_ns >= end_ns) or tree.missions_done(channel, missions, plan.vehicles):
+                if pacer is not None:
+                    self._pacing = _pacing(pacer, t_ns, wall0, self.clock.now_ns())
                 return RunStatus.OK, "", t_ns
             if plan.pause_at_s is not None and not paused_once and t_ns >= plan.pause_at_s * NS_PER_S:
                 paused_once = True
@@ -584,6 +586,19 @@ def _mission_argv(address: str, vehicle: int, m: MissionPlan, name: str | None =
 
 def _own_mission(plan: LaunchPlan, i: int) -> bool:
     return i < len(plan.missions) and plan.missions[i] is not None
+
+
+def _pacing(pacer: Pacer, t_ns: int, wall0: int, now_ns: int) -> dict[str, float]:
+    """``--speed``'s account (``summary.json``): the loop's wall time, sim time and how far it fell behind the
+    schedule because the machine could not keep up (given up, plus the lag at the end; pauses not counted), so
+    ``sim_s / (wall_s - behind_s)`` is the speed asked whenever pacing works, on an idle or a loaded machine."""
+    behind = pacer.behind_ns + pacer.lag_ns(t_ns, now_ns)
+    return {
+        "speed": pacer.speed,
+        "sim_s": t_ns / NS_PER_S,
+        "wall_s": (now_ns - wall0) / NS_PER_S,
+        "behind_s": behind / NS_PER_S,
+    }
 
 
 def _mission_count(plan: LaunchPlan) -> int:

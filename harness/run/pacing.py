@@ -27,14 +27,21 @@ class Pacer:
         self.max_lag_ns = max_lag_ns
         self.moved_ns = 0
         """How far the schedule has moved, in all: stalls that were not made up."""
+        self.behind_ns = 0
+        """Of that, how far because the run could not keep up (lags beyond ``max_lag_ns``; pauses not counted)."""
 
     def wait_ns(self, t_ns: int, now_ns: int) -> int:
         """How long to wait before the tick at sim time ``t_ns`` (0 when it is due or late)."""
         lag = now_ns - (self.origin_ns + int(t_ns / self.speed))
         if lag > self.max_lag_ns:
             self.shift(lag - self.max_lag_ns)
+            self.behind_ns += lag - self.max_lag_ns
             lag = self.max_lag_ns
         return max(0, -lag)
+
+    def lag_ns(self, t_ns: int, now_ns: int) -> int:
+        """How late sim time ``t_ns`` is at ``now_ns`` against the schedule (0 when on time or early)."""
+        return max(0, now_ns - (self.origin_ns + int(t_ns / self.speed)))
 
     def shift(self, wall_ns: int) -> None:
         """Move the schedule ``wall_ns`` later (a pause: nothing of it is made up)."""

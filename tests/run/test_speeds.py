@@ -29,7 +29,15 @@ def test_takeoff_and_land_at_any_speed(harness_run: Callable[..., RunRecord], sp
     high = [m["t_s"] for m in v.track if m["pos_ned_m"][2] < -9.5]
     assert 5.0 < high[-1] - high[0] < 15.0
     if speed is not None:
-        assert run.summary["real_time_factor"] == pytest.approx(speed, rel=0.15)
+        # the loop runs at the speed asked, less what a machine too busy to keep up lost (the summary says how
+        # much): on an idle machine behind_s is ~0; under load (another suite beside this one) it was 2-7 s at
+        # x10, where the run's real-time factor alone read 3.5 and failed the test
+        pacing = run.summary["pacing"]
+        assert pacing["speed"] == speed
+        kept = pacing["wall_s"] - pacing["behind_s"]
+        assert pacing["sim_s"] / kept == pytest.approx(speed, rel=0.05), pacing
+        assert pacing["wall_s"] >= pacing["sim_s"] / speed * 0.99, "never faster than asked"
+        print(f"FIGURE speed {speed}: real-time factor {run.summary['real_time_factor']:.2f}, pacing {pacing}")
 
 
 def test_a_five_second_stall_does_not_disconnect_mavsdk(harness_run: Callable[..., RunRecord]) -> None:
