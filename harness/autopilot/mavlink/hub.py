@@ -50,10 +50,7 @@ class HubMember(Protocol):
     @property
     def next_wake_ns(self) -> int: ...
     def attached(self, hub: MavlinkHub) -> None: ...
-    def receive(self, link: int, now: int) -> bool:
-        """Handle what ``link`` received; True when the server wants servicing at once."""
-        ...
-
+    def receive(self, link: int, now: int) -> None: ...
     def service(self, now: int) -> None: ...
 
 
@@ -167,8 +164,8 @@ class MavlinkHub:
                         pass
                 continue
             server, link = key.data
-            if server.receive(link, now):
-                todo[server] = None
+            server.receive(link, now)
+            todo[server] = None
         while self._ops:
             op, server, done = self._ops.popleft()
             self._apply(op, server)

@@ -264,25 +264,15 @@ class MavlinkServer:
         return c
 
     # ------------------------------------------------------------------ driven by the hub
-    def receive(self, link: int, now: int) -> bool:
-        """Datagrams are waiting on ``links[link]``: handle them (hub thread). True when a peer on the wall clock
-        sent some: the hub services the server at once, so that what they changed (a forced heartbeat, a text)
-        goes out now. What peers on sim time sent goes out when their runtime settles (``SETTLE_PREFIX``) or at
-        the next step: serviced on the hub between two of a mission's commands, the vehicle sent one forced
-        heartbeat or two in the same phase, as the machine happened to schedule it."""
-        lk = self.links[link]
-        wall = handled = False
+    def receive(self, link: int, now: int) -> None:
+        """Datagrams are waiting on ``links[link]``: handle them (hub thread)."""
         with self._lock:
             try:
-                for data, addr in lk.receive(512):
-                    handled = True
-                    wall = wall or not lk.is_sim_peer(addr)
+                for data, addr in self.links[link].receive(512):
                     self._on_datagram(link, data, addr, now)
             except Exception as e:  # never let one bad datagram end the thread
                 self._count("handler_errors")
                 self._log_once(e, "receive")
-                return True
-        return wall or not handled  # (an announcement only: a MAVSDK port to greet from now on)
 
     def _bell(self) -> None:
         """The autopilot's stepping thread, at a sim time something is due: sim-rate work happens here."""
