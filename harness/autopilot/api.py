@@ -227,6 +227,7 @@ class MavCmd(enum.IntEnum):
     DO_SET_ROI_LOCATION = 195
     DO_SET_ROI_NONE = 197
     DO_SET_CAM_TRIGG_DIST = 206
+    DO_GRIPPER = 211
     MISSION_START = 300
     ARM_DISARM = 400
     DO_GIMBAL_MANAGER_PITCHYAW = 1000
@@ -421,6 +422,10 @@ class VehicleState:
     """Current horizontal speed limit (changed by DO_CHANGE_SPEED)."""
     failsafe: Failsafe = Failsafe.NONE
     """The active failsafe (``Failsafe.NONE``, '', when none)."""
+    fence_max_hor_m: float = 0.0
+    """The geofence's horizontal distance limit from home (0: none)."""
+    grippers_grabbed: tuple[int, ...] = ()
+    """The gripper instances (1…6) holding a payload (``harness.autopilot.gripper``)."""
 
     @property
     def in_air(self) -> bool:

@@ -14,7 +14,6 @@ import importlib.util
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -22,18 +21,13 @@ from urllib.parse import quote
 
 from harness.core import lifeline
 from harness.core.errors import ScenarioError
+from harness.core.freeport import free_tcp_port
 from harness.record.sink import INSTALL_HINT, rerun_available
 
 
 class ViewMode(enum.Enum):
     NATIVE = "native"
     WEB = "web"
-
-
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
 
 
 def require_rerun(what: str) -> None:
@@ -68,7 +62,7 @@ class WebViewer:
 
     def __init__(self, port: int | None = None) -> None:
         require_rerun("the web viewer")
-        self.port = port or free_port()
+        self.port = port or free_tcp_port()
         self._started = False
 
     def url(self, connect_to: str) -> str:
@@ -128,8 +122,8 @@ class NativeViewer:
 def serve_file_web(rrd: Path, web_port: int | None = None) -> tuple[subprocess.Popen[bytes], str]:
     """``rerun --serve-web`` on a recording, as a supervised child; returns it and the URL to open."""
     require_rerun("the web viewer")
-    port = web_port or free_port()
-    grpc_port = free_port()
+    port = web_port or free_tcp_port()
+    grpc_port = free_tcp_port()
     proc = subprocess.Popen(
         [rerun_executable(), "--serve-web", "--web-viewer-port", str(port), "--port", str(grpc_port), str(rrd)],
         stdin=subprocess.DEVNULL,

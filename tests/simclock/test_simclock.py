@@ -17,8 +17,9 @@ from harness.channel.drivers import run_fake_physics
 from harness.core.clock import ManualClock
 from harness.simclock import patch
 from harness.simclock.runtime import SimRuntime
+from tests.helpers import wait_until
 
-from .conftest import Procs, wait_until
+from .conftest import Procs
 
 TICK_HZ = 250.0
 PHASE_EVERY = 5

@@ -8,11 +8,12 @@ from typing import Protocol
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, Severity, VehicleState
+from harness.autopilot.api import Severity, VehicleState
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.telemetry import Builder, StreamScheduler
+from harness.autopilot.services import System
 
 
 class DialectHost(Protocol):
@@ -31,7 +32,7 @@ class DialectHost(Protocol):
 
 
 class Dialect(Protocol):
-    api: AutopilotApi
+    api: System
     mission_float_form: bool
     param_bytewise: bool
     builders: Mapping[int, Builder]

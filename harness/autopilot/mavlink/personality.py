@@ -24,7 +24,7 @@ from collections.abc import Callable, Mapping
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, VehicleState
+from harness.autopilot.api import VehicleState
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.dialect_api import Dialect, DialectHost
@@ -32,6 +32,7 @@ from harness.autopilot.mavlink.heartbeat import heartbeat_message
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.telemetry import DEFAULT_INTERVALS_NS, Builder
 from harness.autopilot.mavlink.version import autopilot_version
+from harness.autopilot.services import System
 
 
 class Px4Dialect:
@@ -40,7 +41,7 @@ class Px4Dialect:
     mission_float_form = False
     param_bytewise = True
 
-    def __init__(self, api: AutopilotApi) -> None:
+    def __init__(self, api: System) -> None:
         self.api = api
         self.builders: Mapping[int, Builder] = {}
         self.stream_defaults: Mapping[int, int] = DEFAULT_INTERVALS_NS
@@ -64,19 +65,19 @@ class Px4Dialect:
         return []
 
 
-def _ardupilot(api: AutopilotApi, sysid: int) -> Dialect:
+def _ardupilot(api: System, sysid: int) -> Dialect:
     from harness.autopilot.mavlink.ardupilot.dialect import CopterDialect
 
     return CopterDialect(api, sysid)
 
 
-_FACTORIES: dict[Firmware, Callable[[AutopilotApi, int], Dialect]] = {
+_FACTORIES: dict[Firmware, Callable[[System, int], Dialect]] = {
     Firmware.PX4: lambda api, _sysid: Px4Dialect(api),
     Firmware.ARDUPILOT: _ardupilot,
 }
 
 
-def make_dialect(firmware: Firmware, api: AutopilotApi, sysid: int) -> Dialect:
+def make_dialect(firmware: Firmware, api: System, sysid: int) -> Dialect:
     return _FACTORIES[firmware](api, sysid)
 
 

@@ -24,8 +24,8 @@ from collections.abc import Callable, Mapping
 from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, CommandResult, FlightMode, MavFrame, Severity, StatusText, VehicleState
-from harness.autopilot.mavlink.ardupilot.adapter import CopterApi, copter_text
+from harness.autopilot.api import CommandResult, FlightMode, MavFrame, Severity, StatusText, VehicleState
+from harness.autopilot.mavlink.ardupilot.adapter import CopterSystem, copter_text
 from harness.autopilot.mavlink.ardupilot.guided import (
     RELATIVE_GLOBAL,
     Goto,
@@ -55,7 +55,7 @@ from harness.autopilot.mavlink.commands import FORCE_MAGIC, CommandIn, CommandOu
 from harness.autopilot.mavlink.dialect_api import DialectHost
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, is_set
 from harness.autopilot.mavlink.telemetry import SENSOR_GEOFENCE, Builder, sys_status
-from harness.autopilot.params import Params
+from harness.autopilot.services import System
 from harness.autopilot.validate import finite
 from harness.core.geo import flat_offset_m
 
@@ -96,11 +96,10 @@ class CopterDialect:
     mission_float_form = True
     param_bytewise = False
 
-    def __init__(self, core: AutopilotApi, sysid: int) -> None:
-        registry = getattr(core, "params", None)
+    def __init__(self, core: System, sysid: int) -> None:
         self._core = core
-        self.params = CopterParams(registry if isinstance(registry, Params) else Params(), sysid)
-        self.api: AutopilotApi = CopterApi(core, self.params)
+        self.params = CopterParams(core.params, sysid)
+        self.api: System = CopterSystem(core, self.params)
         self.modes = ModeTracker()
         self.builders: Mapping[int, Builder] = {
             apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report,
@@ -193,17 +192,17 @@ class CopterDialect:
         if mode not in SUPPORTED:
             names = ", ".join(m.name for m in sorted(SUPPORTED))
             return CommandResult.denied(f"Mode change to {mode.name} failed: not flown here (modes: {names})")
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if mode == self.modes.shown(st.mode):
             return CommandResult.accepted()
         if mode is CopterMode.STABILIZE:
             if st.armed and st.in_air:
                 return CommandResult.denied("Mode change to STABILIZE failed: it needs RC input, none is configured")
-            r = self.api.hold()
+            r = self.api.action.hold()
         elif mode is CopterMode.CIRCLE:
             r = self._circle(st)
         else:
-            r = self.api.set_mode(CORE_MODE[mode])
+            r = self.api.action.set_mode(CORE_MODE[mode])
         if not r.ok:
             return CommandResult(r.result, f"Mode change to {mode.name} failed: {r.reason}")
         self.modes.select(mode)
@@ -219,7 +218,7 @@ class CopterDialect:
         n, e, d = st.pos_ned_m
         lat, lon, _ = geo_of_local(st, (n + radius * math.cos(st.yaw_rad), e + radius * math.sin(st.yaw_rad), d))
         speed = abs(math.radians(rate)) * radius
-        return self.api.orbit(radius if rate >= 0 else -radius, max(speed, 0.1), lat, lon, st.alt_amsl_m)
+        return self.api.action.orbit(radius if rate >= 0 else -radius, max(speed, 0.1), lat, lon, st.alt_amsl_m)
 
     # ------------------------------------------------------------------ commands
     def command_handlers(self) -> Mapping[int, Callable[[CommandIn], CommandOutcome]]:
@@ -240,7 +239,7 @@ class CopterDialect:
         relative = RELATIVE_GLOBAL.get(MavFrame(cmd.frame)) if cmd.frame in set(MavFrame) else None
         if relative is None:
             return CommandOutcome(CommandResult.denied("DO_REPOSITION: send it as COMMAND_INT in a global frame"))
-        st = self.api.state()
+        st = self.api.telemetry.state()
         changed = False
         if self.modes.shown(st.mode) is not CopterMode.GUIDED:
             if not (math.isfinite(cmd.params[1]) and int(cmd.params[1]) & 1):
@@ -255,7 +254,7 @@ class CopterDialect:
         r = self._goto(Goto(*point))
         speed = cmd.params[0]
         if r.ok and math.isfinite(speed) and speed > 0:
-            self.api.change_speed(speed)
+            self.api.action.change_speed(speed)
         return CommandOutcome(r, mode_or_arming_changed=changed)
 
     def _do_set_mode(self, cmd: CommandIn) -> CommandOutcome:
@@ -265,18 +264,18 @@ class CopterDialect:
     def _arm(self, cmd: CommandIn) -> CommandOutcome:
         p1, force = cmd.params[0], cmd.params[1] == FORCE_MAGIC
         if p1 == 0.0:
-            r = self.api.disarm(force)
+            r = self.api.action.disarm(force)
             return CommandOutcome(r, mode_or_arming_changed=r.ok)
         if p1 != 1.0:
             return CommandOutcome(CommandResult.denied(f"ARM_DISARM param1 must be 1 (arm) or 0 (disarm), got {p1}"))
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if st.armed:
             return CommandOutcome(CommandResult.accepted())
         checks = int(self.params["ARMING_CHECK"]) != 0 and not force
         shown = self.modes.shown(st.mode)
         if checks and shown not in ARMABLE:
             return CommandOutcome(CommandResult.denied("Arm: Mode not armable"))
-        r = self.api.arm(not checks)
+        r = self.api.action.arm(not checks)
         if not r.ok:
             r = CommandResult(r.result, copter_text_reason(r.reason))
         self._armed_at_t_ns = st.t_ns if r.ok else None
@@ -284,7 +283,7 @@ class CopterDialect:
 
     def _takeoff(self, cmd: CommandIn) -> CommandOutcome:
         alt = cmd.params[6]
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if not (st.armed or st.t_ns == self._armed_at_t_ns):  # armed, or just now (a takeoff may follow at once)
             return CommandOutcome(CommandResult.denied("Takeoff: vehicle not armed"))
         shown = self.modes.shown(st.mode)
@@ -294,14 +293,14 @@ class CopterDialect:
             return CommandOutcome(CommandResult.denied("Takeoff: already flying"))
         if not math.isfinite(alt) or alt <= 0.0:
             return CommandOutcome(CommandResult.denied(f"Takeoff: altitude {alt} m above home is not valid"))
-        r = self.api.takeoff(alt)  # relative to home, as ArduCopter reads param 7
+        r = self.api.action.takeoff(alt)  # relative to home, as ArduCopter reads param 7
         return CommandOutcome(r, mode_or_arming_changed=r.ok)
 
     def _condition_yaw(self, cmd: CommandIn) -> CommandOutcome:
         angle, _speed, direction, relative = cmd.params[:4]
         if not finite([angle, direction, relative]):
             return CommandOutcome(CommandResult.denied("CONDITION_YAW with NaN or infinite parameters"))
-        st = self.api.state()
+        st = self.api.telemetry.state()
         yaw = math.radians(angle)
         if relative:
             yaw = st.yaw_rad + (-yaw if direction < 0 else yaw)
@@ -311,10 +310,7 @@ class CopterDialect:
         return CommandOutcome(r)
 
     def _set_yaw(self, yaw: float | None) -> CommandResult:
-        fn: Callable[[float | None], CommandResult] | None = getattr(self.api, "set_yaw", None)
-        if fn is None:
-            return CommandResult.unsupported("this autopilot cannot point its nose on command")
-        return fn(yaw)
+        return self.api.action.set_yaw(yaw)
 
     def _set_roi(self, cmd: CommandIn) -> CommandOutcome:
         p = cmd.params
@@ -359,7 +355,7 @@ class CopterDialect:
         return None
 
     def _guided_item(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out]:
-        st = self.api.state()
+        st = self.api.telemetry.state()
         code = _M.MAV_MISSION_ACCEPTED
         reason = ""
         if self.modes.shown(st.mode) is not CopterMode.GUIDED:
@@ -382,10 +378,10 @@ class CopterDialect:
 
     def _goto(self, goto: Goto) -> CommandResult:
         yaw = goto.yaw_rad if goto.yaw_rad is not None else self._yaw_hold
-        return self.api.reposition(goto.lat_deg, goto.lon_deg, goto.alt_amsl_m, yaw)
+        return self.api.action.reposition(goto.lat_deg, goto.lon_deg, goto.alt_amsl_m, yaw)
 
     def _position_target(self, m: MAVLinkMessage, now: int) -> None:
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if self.modes.shown(st.mode) is not CopterMode.GUIDED:
             log.debug("vehicle %d: position target ignored outside GUIDED", self.api.vehicle)
             return
@@ -404,9 +400,9 @@ class CopterDialect:
             sp = target.setpoint
             if sp.yaw_rad is None and sp.yaw_rate_rad_s is None and self._yaw_hold is not None:
                 sp = type(sp)(sp.position_m, sp.velocity_m_s, sp.accel_m_s2, self._yaw_hold, None, sp.frame)
-            r = self.api.set_offboard_setpoint(sp)
+            r = self.api.offboard.set_setpoint(sp)
             if r.ok and st.mode is not FlightMode.OFFBOARD:
-                r = self.api.set_mode(FlightMode.OFFBOARD)
+                r = self.api.action.set_mode(FlightMode.OFFBOARD)
         if not r.ok and r.reason and self._host is not None:
             self._host.say(Severity.WARNING, r.reason, now)
 
@@ -422,8 +418,7 @@ class CopterDialect:
                 self._set_yaw(math.atan2(de, dn))
         booting = state.t_ns < PREARM_FIRST_NS
         if not state.armed and not booting and not state.health.preflight_ok and now >= self._prearm_next_ns:
-            check: Callable[[], str] | None = getattr(self._core, "arming_check", None)
-            reason = check() if check is not None and int(self.params["ARMING_CHECK"]) != 0 else ""
+            reason = self._core.telemetry.arming_check() if int(self.params["ARMING_CHECK"]) != 0 else ""
             if reason and self._host is not None:
                 self._prearm_next_ns = now + PREARM_REPORT_NS
                 self._host.say(Severity.CRITICAL, f"PreArm: {reason}", now)
