@@ -50,13 +50,15 @@ def in_process(n: int, seconds: float) -> dict[str, float]:
         frames = phys.step([ap.step(f) for ap, f in zip(aps, frames, strict=True)])
         if ticks % 25 == 0:
             for ap in aps:
-                s = ap.state()
-                if not s.armed and ap.arming_check() == "":
-                    ap.arm()
-                    ap.takeoff(ALT_M)
-        if ticks > tick_hz * 3 and all(ap.state().mode == FlightMode.HOLD and ap.state().armed for ap in aps):
+                s = ap.telemetry.state()
+                if not s.armed and ap.telemetry.arming_check() == "":
+                    ap.action.arm()
+                    ap.action.takeoff(ALT_M)
+        if ticks > tick_hz * 3 and all(
+            ap.telemetry.state().mode == FlightMode.HOLD and ap.telemetry.state().armed for ap in aps
+        ):
             break
-    assert all(ap.state().armed for ap in aps), [ap.arming_check() for ap in aps]
+    assert all(ap.telemetry.state().armed for ap in aps), [ap.telemetry.arming_check() for ap in aps]
     n_ticks = round(seconds * tick_hz)
     ap_ns = 0
     perf = time.perf_counter_ns
@@ -96,11 +98,11 @@ def with_lockstep_core(n: int, seconds: float) -> dict[str, float]:
             frames = phys.step([e.motors for e in etas])
             if ticks % 25 == 0:
                 for ap in aps.values():
-                    if not ap.state().armed and ap.arming_check() == "":
-                        ap.arm()
-                        ap.takeoff(ALT_M)
+                    if not ap.telemetry.state().armed and ap.telemetry.arming_check() == "":
+                        ap.action.arm()
+                        ap.action.takeoff(ALT_M)
             if ticks > tick_hz * 3 and all(
-                ap.state().mode == FlightMode.HOLD and ap.state().armed for ap in aps.values()
+                ap.telemetry.state().mode == FlightMode.HOLD and ap.telemetry.state().armed for ap in aps.values()
             ):
                 break
         n_ticks = round(seconds * tick_hz)

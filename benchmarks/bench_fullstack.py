@@ -37,9 +37,9 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+from bare_jsbsim import bare_rtf  # a sibling script: run as a script, this one's folder is on sys.path
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from bare_jsbsim import bare_rtf  # noqa: E402  (a sibling script, not a package)
 
 TARGETS = {1: 30.0, 10: 3.0, 50: 0.5}
 BEACON_HZ = 10.0

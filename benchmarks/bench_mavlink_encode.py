@@ -46,10 +46,10 @@ def hovering_state() -> VehicleState:
     frames = phys.frames()
     for tick in range(250 * 12):
         frames = phys.step([ap.step(frames[0])])
-        if tick % 25 == 0 and not ap.state().armed and ap.arming_check() == "":
-            ap.arm()
-            ap.takeoff(5.0)
-    state = ap.state()
+        if tick % 25 == 0 and not ap.telemetry.state().armed and ap.telemetry.arming_check() == "":
+            ap.action.arm()
+            ap.action.takeoff(5.0)
+    state = ap.telemetry.state()
     assert state.armed and state.mode in (FlightMode.TAKEOFF, FlightMode.HOLD), state.mode
     return state
 

@@ -93,10 +93,10 @@ def measure(n: int, seconds: float) -> dict[str, float]:
                     )  # fmt: skip
             if tick % 25 == 0 and tick < warm:
                 for ap in aps:
-                    if not ap.state().armed and ap.arming_check() == "":
-                        ap.arm()
-                        ap.takeoff(5.0)
-        hovering = sum(ap.state().mode == FlightMode.HOLD for ap in aps)
+                    if not ap.telemetry.state().armed and ap.telemetry.arming_check() == "":
+                        ap.action.arm()
+                        ap.action.takeoff(5.0)
+        hovering = sum(ap.telemetry.state().mode == FlightMode.HOLD for ap in aps)
         for ap in aps:
             assert ap.flight_log is not None
             ap.flight_log.close()

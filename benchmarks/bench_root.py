@@ -7,7 +7,7 @@ half in an autopilot host, as ``--workers auto`` splits them on two cores.
     .venv/bin/python benchmarks/bench_root.py                    # 10 and 100 vehicles
     .venv/bin/python benchmarks/bench_root.py 100 --view         # with world.rrd (Rerun installed)
 
-It drives ``Launcher._record``, ``Ledger``, ``protocol.unpack_ticks`` and the ``WorldTee`` directly with
+It drives ``Launcher.record_rows``, ``Ledger``, ``protocol.unpack_ticks`` and the ``WorldTee`` directly with
 synthetic truth; figures are µs of this process's CPU per tick (250 Hz).
 """
 
@@ -61,7 +61,7 @@ def root_us_per_tick(n: int, ticks: int, view: bool) -> float:
                     row.motors[e.vehicle], row.status[e.vehicle] = e.motors, e.status
             done = list(ledger.complete())
             if done:
-                Launcher._record(done, RECORD_EVERY, summaries, world)
+                Launcher.record_rows(done, RECORD_EVERY, summaries, world)
         cpu_s = time.process_time() - start
         world.close()
     return cpu_s / ticks * 1e6

@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 from harness.core.clock import NS_PER_S
+from harness.core.freeport import free_tcp_port
 from harness.record.rrd import RrdRecorder
 from harness.record.sample import VehicleSample
-from harness.record.viewer import free_port
 from harness.record.world import WorldRecorder
 
 RECORD_HZ = 50
@@ -102,7 +102,7 @@ def main() -> int:
                 out / "world.rrd",
                 n,
                 (47.0, 8.0, 500.0),
-                serve_port=free_port() if a.serve else None,
+                serve_port=free_tcp_port() if a.serve else None,
                 batch_s=0.5 * max(1.0, n / 25) if a.serve else 2.0,  # as harness.record.sink.open_world
                 min_wall_s=0.0,
             )

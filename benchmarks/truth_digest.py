@@ -44,13 +44,13 @@ def fly(n: int, seconds: float, seed: int) -> tuple[str, np.ndarray, np.ndarray]
         frames = phys.step(motors)
         if tick % 25 == 0:
             for i, ap in enumerate(aps):
-                s = ap.state()
-                if not s.armed and ap.arming_check() == "":
-                    ap.arm()
-                    ap.takeoff(5.0)
+                s = ap.telemetry.state()
+                if not s.armed and ap.telemetry.arming_check() == "":
+                    ap.action.arm()
+                    ap.action.takeoff(5.0)
                 elif s.armed and s.mode == FlightMode.HOLD and not moved[i] and tick > 250 * 12:
                     lat, lon, _ = phys.cfg.origin.ned_to_geodetic(6.0, 6.0, 0.0)
-                    ap.reposition(lat, lon, None)
+                    ap.action.reposition(lat, lon, None)
                     moved[i] = True
     return digest.hexdigest(), np.asarray(pos, dtype=np.float64), np.asarray(mot, dtype=np.float64)
 

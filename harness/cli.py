@@ -191,7 +191,8 @@ def _live_view(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, lis
     """``--view [native|web]``: the plan serves its 3D view live; the viewer starts once the stream is up."""
     import dataclasses
 
-    from harness.record.viewer import NativeViewer, ViewMode, WebViewer, free_port, require_rerun
+    from harness.core.freeport import free_tcp_port
+    from harness.record.viewer import NativeViewer, ViewMode, WebViewer, require_rerun
 
     mode = ViewMode(a.view)
     require_rerun(f"--view {mode.value}")
@@ -210,7 +211,7 @@ def _live_view(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, lis
             natives.append(native.start())
             print(f"3D view: native viewer on {stream}", flush=True)
 
-    return dataclasses.replace(plan, view_port=free_port(), on_view=on_view), natives
+    return dataclasses.replace(plan, view_port=free_tcp_port(), on_view=on_view), natives
 
 
 def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:

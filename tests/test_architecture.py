@@ -1,5 +1,6 @@
 """The package's shape (docs/architecture.md): no import cycle between harness modules, every import points
-down the declared layer order, and no module is longer than one sitting's read.
+down the declared layer order, and no module reaches into another's private names. (Modules are split along
+seams, not at a line count: no length is checked.)
 
 The import graph is read from the source with ``ast``: every ``import`` counts, at module level, inside a
 function, or under ``TYPE_CHECKING`` — a cycle hidden in a function is still a cycle.
@@ -171,3 +172,74 @@ def test_every_module_has_a_layer(graph: dict[str, set[str]]) -> None:
 
 def test_layers_depend_downward_only(graph: dict[str, set[str]]) -> None:
     assert upward_imports(graph) == []
+
+
+def _private_names_defined(tree: ast.AST) -> set[str]:
+    """The private names a module defines: functions, classes, module globals, attributes it assigns, slots."""
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            out.add(node.name)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            out.add(node.attr)
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+            out.add(node.id)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            out.add(node.value)  # __slots__ entries
+    return {n for n in out if n.startswith("_") and not n.startswith("__")}
+
+
+def private_accesses(modules: Mapping[str, Path]) -> list[str]:
+    """Every ``x._name`` (x not ``self`` / ``cls``) whose ``_name`` another harness module defines and this one
+    does not: one module reaching into another's private state. (Privates of the standard library or of
+    third-party packages, ``os._exit``, are not counted: their owners are not ours to reshape.)"""
+    trees = {name: ast.parse(path.read_text(), str(path)) for name, path in modules.items()}
+    defined = {name: _private_names_defined(tree) for name, tree in trees.items()}
+    ours = set().union(*defined.values())
+    out = []
+    for name, tree in trees.items():
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.Attribute) or not node.attr.startswith("_") or node.attr.startswith("__"):
+                continue
+            if isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+                continue
+            if node.attr in ours and node.attr not in defined[name]:
+                out.append(f"{name}:{node.lineno}: {ast.unparse(node)}")
+    return sorted(out)
+
+
+KNOWN_PRIVATE_ACCESSES = {
+    "harness.simclock.iowait": "rt._tracked",
+    "harness.simclock.mavsdk_compat": "rt._tracked",
+    "harness.simclock.patch": "rt._tracked",
+    "harness.simclock.simsocket": "rt._tracked",
+}
+"""The mission runtime's blocker registry, read by the patches around it: to become public with the runtime's
+single scheduler (issue 22, ``docs/architecture.md``). Nothing may be added here."""
+
+
+def test_private_accesses_are_found(tmp_path: Path) -> None:
+    pkg = tmp_path / "harness"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text(
+        "class A:\n    def __init__(self):\n        self._x = 1\n\n    def same(self, o):\n        return o._x\n"
+    )
+    (pkg / "b.py").write_text("import os\n\ndef f(a):\n    os._exit(a._x)\n")
+    assert private_accesses(module_files(pkg)) == ["harness.b:4: a._x"]
+
+
+THIRD_PARTY_PRIVATES = {("harness.record.world", "chunk.record_writer._buffer")}
+"""Accesses to a third-party object's private name that happens to be spelled like one of ours (``mcap``'s chunk
+buffer, written to directly by ``record/world.py``'s fast path, which checks its type and falls back to
+``Writer.add_message`` when it is not there): not one harness module reaching into another."""
+
+
+def test_no_module_touches_another_modules_private_names() -> None:
+    found = [
+        hit
+        for hit in private_accesses(module_files())
+        if KNOWN_PRIVATE_ACCESSES.get(hit.partition(":")[0]) != hit.rpartition(": ")[2]
+        and (hit.partition(":")[0], hit.rpartition(": ")[2]) not in THIRD_PARTY_PRIVATES
+    ]
+    assert found == [], "use (or add) a public method instead of reaching into another module's private state"

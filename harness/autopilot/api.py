@@ -1,15 +1,15 @@
 """The autopilot's typed in-process API: modes, states, missions, commands and their results.
 
 This module is the contract between the flight core (``harness.autopilot.autopilot.Autopilot``), its tests
-and the MAVLink interface (``harness.autopilot.mavlink``). It holds only data types and the ``AutopilotApi``
-protocol; it imports nothing heavy, so anything can depend on it.
+and the MAVLink interface (``harness.autopilot.mavlink``). It holds only data types (the services that use
+them are ``harness.autopilot.services``); it imports nothing heavy, so anything can depend on it.
 
 Conventions: world frame NED (metres) with its origin at the scenario's world origin; body frame FRD;
 quaternions (w, x, y, z) rotate body to world; angles in radians unless a name says ``_deg``; times are
 integer nanoseconds of sim time (``t_ns``). Altitudes: ``alt_amsl_m`` above mean sea level,
 ``rel_alt_m`` above home.
 
-Threading: every ``AutopilotApi`` method may be called from any thread (MAVLink runs on the wall clock
+Threading: every service method may be called from any thread (MAVLink runs on the wall clock
 while ``step()`` runs in lockstep). Commands are validated at once and return a ``CommandResult``; their
 effect applies at the next ``step()``.
 """
@@ -18,9 +18,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
 
 from harness.core.geo import Quat, Vec3
 
@@ -227,6 +225,7 @@ class MavCmd(enum.IntEnum):
     DO_SET_ROI_LOCATION = 195
     DO_SET_ROI_NONE = 197
     DO_SET_CAM_TRIGG_DIST = 206
+    DO_GRIPPER = 211
     MISSION_START = 300
     ARM_DISARM = 400
     DO_GIMBAL_MANAGER_PITCHYAW = 1000
@@ -421,6 +420,10 @@ class VehicleState:
     """Current horizontal speed limit (changed by DO_CHANGE_SPEED)."""
     failsafe: Failsafe = Failsafe.NONE
     """The active failsafe (``Failsafe.NONE``, '', when none)."""
+    fence_max_hor_m: float = 0.0
+    """The geofence's horizontal distance limit from home (0: none)."""
+    grippers_grabbed: tuple[int, ...] = ()
+    """The gripper instances (1…6) holding a payload (``harness.autopilot.gripper``)."""
 
     @property
     def in_air(self) -> bool:
@@ -457,45 +460,3 @@ class MissionReached:
 
     t_ns: int
     seq: int
-
-
-class AutopilotApi(Protocol):
-    """What the flight core offers to tests and to the MAVLink interface (all methods thread-safe)."""
-
-    vehicle: int
-
-    def state(self) -> VehicleState: ...
-    def arm(self, force: bool = False) -> CommandResult: ...
-    def disarm(self, force: bool = False) -> CommandResult: ...
-    def set_mode(self, mode: FlightMode) -> CommandResult: ...
-    def takeoff(self, alt_m: float | None = None) -> CommandResult: ...
-    def land(self) -> CommandResult: ...
-    def return_to_launch(self) -> CommandResult: ...
-    def hold(self) -> CommandResult: ...
-    def upload_mission(
-        self, items: Sequence[MissionItem], kind: MissionKind = MissionKind.MISSION
-    ) -> CommandResult: ...
-    def download_mission(self, kind: MissionKind = MissionKind.MISSION) -> tuple[MissionItem, ...]: ...
-    def clear_mission(self, kind: MissionKind = MissionKind.MISSION) -> CommandResult: ...
-    def set_current_item(self, seq: int) -> CommandResult: ...
-    def start_mission(self) -> CommandResult: ...
-    def pause_mission(self) -> CommandResult: ...
-    def set_offboard_setpoint(self, sp: OffboardSetpoint) -> CommandResult: ...
-    def set_attitude_target(self, target: AttitudeTarget) -> CommandResult: ...
-    def reposition(
-        self, lat_deg: float | None, lon_deg: float | None, alt_amsl_m: float | None, yaw_rad: float | None = None
-    ) -> CommandResult: ...
-    def orbit(
-        self,
-        radius_m: float,
-        velocity_m_s: float,
-        center_lat_deg: float | None = None,
-        center_lon_deg: float | None = None,
-        alt_amsl_m: float | None = None,
-    ) -> CommandResult: ...
-    def change_speed(self, speed_m_s: float) -> CommandResult: ...
-    def set_home(self, point: GeoPoint | None = None) -> CommandResult: ...
-    def get_param(self, name: str) -> float | int: ...
-    def set_param(self, name: str, value: float) -> CommandResult: ...
-    def pop_status_texts(self) -> list[StatusText]: ...
-    def pop_mission_reached(self) -> list[MissionReached]: ...

@@ -21,12 +21,8 @@ from typing import Protocol
 import msgspec
 
 from harness.autopilot.api import CommandResult, Failsafe, FlightMode, LandedState, Severity
-from harness.autopilot.supervisor import Supervised
+from harness.autopilot.supervisor import Commander
 from harness.fdm.frame import MOTOR_COUNT, Imu, SensorFrame
-
-
-class _ManualInput(Protocol):
-    def fresh(self) -> bool: ...
 
 
 class _Config(Protocol):
@@ -34,22 +30,11 @@ class _Config(Protocol):
     def use_ground_truth(self) -> bool: ...
 
 
-class FailureHost(Supervised, Protocol):
+class FailureHost(Commander, Protocol):
     """What the failure injector reads of, and does to, its autopilot (``harness.autopilot.Autopilot``)."""
 
     @property
     def config(self) -> _Config: ...
-
-    @property
-    def manual(self) -> _ManualInput: ...
-
-    def flies_attitude(self) -> bool:
-        """Whether OFFBOARD flies attitude targets (no position needed)."""
-        ...
-
-    def state_changed(self) -> None:
-        """Drop the cached state snapshot."""
-        ...
 
 
 class FailureUnit(enum.IntEnum):
@@ -117,7 +102,8 @@ _NEEDS_POSITION = frozenset(
 
 
 class FailureInjector:
-    """The injected failures of one vehicle; called by its ``Autopilot`` under the autopilot's lock."""
+    """The injected failures of one vehicle: the autopilot's ``failure`` service. ``inject`` takes the autopilot's
+    lock; the rest is called by ``Autopilot.step`` under it."""
 
     def __init__(self, ap: FailureHost) -> None:
         self.ap = ap
@@ -132,6 +118,11 @@ class FailureInjector:
 
     # ------------------------------------------------------------------ command
     def inject(self, unit: int, kind: int, instance: int) -> CommandResult:
+        """MAV_CMD_INJECT_FAILURE (the MAVLink side checks ``SYS_FAILURE_EN``)."""
+        with self.ap.lock:
+            return self._inject(unit, kind, instance)
+
+    def _inject(self, unit: int, kind: int, instance: int) -> CommandResult:
         try:
             u, k = FailureUnit(unit), FailureType(kind)
         except ValueError:
@@ -232,9 +223,9 @@ class FailureInjector:
             ap.say(Severity.CRITICAL, "No GPS: position estimate invalid")
         if e.pos_valid or not c.armed or c.landed_state == LandedState.ON_GROUND:
             return
-        if c.mode not in _NEEDS_POSITION or (c.mode == FlightMode.OFFBOARD and ap.flies_attitude()):
+        if c.mode not in _NEEDS_POSITION or (c.mode == FlightMode.OFFBOARD and ap.offboard.flies_attitude()):
             return  # (offboard attitude setpoints need no position)
-        if c.mode == FlightMode.POSCTL and ap.params["COM_POSCTL_NAVL"] == 0 and ap.manual.fresh():
+        if c.mode == FlightMode.POSCTL and ap.params["COM_POSCTL_NAVL"] == 0 and ap.manual_control.fresh():
             target = FlightMode.ALTCTL
         else:
             target = FlightMode.LAND  # without a position: PX4's Descend

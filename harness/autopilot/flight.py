@@ -124,7 +124,7 @@ class FlightCore:
             self._pos_n = 0
             self._pos_dt = 0.0
             sp = nav.update(pdt, on_ground)
-            if on_ground and not self._climb_requested(sp):
+            if on_ground and not self.climb_requested(sp):
                 self._qd = None
                 return self._idle_out()
             if on_ground:
@@ -157,7 +157,7 @@ class FlightCore:
         self.pos_ctl.set_hover(hov)
         self._hover = hov
 
-    def _climb_requested(self, sp: object) -> bool:
+    def climb_requested(self, sp: object) -> bool:
         nav = self.nav
         if nav.wants_climb:
             return True

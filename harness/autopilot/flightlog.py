@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, Protocol
 
 from harness.autopilot.api import FlightMode, Severity
 from harness.autopilot.params import Params, ParamType
@@ -188,3 +189,24 @@ class FlightLog:
             if not self.closed:
                 self.closed = True
                 self._f.close()
+
+
+class _LogOwner(Protocol):
+    lock: threading.Lock
+    flight_log: FlightLog | None
+
+
+class FlightLogFiles:
+    """The autopilot's ``log_files`` service: the flight logs to offer over MAVLink."""
+
+    def __init__(self, ap: _LogOwner) -> None:
+        self.ap = ap
+
+    def files(self) -> list[tuple[Path, int, int]]:
+        """(path, size in bytes up to the last whole message, start time in Unix seconds) of each log; the log
+        being written is flushed first; none while the run writes no log."""
+        with self.ap.lock:
+            fl = self.ap.flight_log
+            if fl is None:
+                return []
+            return [(fl.path, fl.flush(), fl.start_unix_us // 1_000_000)]

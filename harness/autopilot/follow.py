@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 
 from harness.autopilot.api import CommandResult
-from harness.autopilot.supervisor import Supervised
+from harness.autopilot.supervisor import Commander
 
 TARGET_TIMEOUT_NS = 2_500_000_000
 MIN_SAFETY_ALT_M = 1.0
@@ -23,10 +23,15 @@ _MOVING_M_S = 0.5
 
 
 class FollowTarget:
-    """The follow-target state of one vehicle; called under the autopilot's lock."""
+    """The follow-target state of one vehicle: the autopilot's ``follow_me`` service. ``set_target`` takes the
+    autopilot's lock; the rest is called by the autopilot under it."""
 
-    def __init__(self, ap: Supervised) -> None:
+    def __init__(self, ap: Commander) -> None:
         self.ap = ap
+        self.reset()
+
+    def reset(self) -> None:
+        """As at boot: no target (a reboot of the flight stack)."""
         self.target: tuple[float, float, float] | None = None
         """Smoothed target position (local NED, m)."""
         self.target_vel: tuple[float, float] = (0.0, 0.0)
@@ -35,6 +40,13 @@ class FollowTarget:
         self._hold: tuple[float, float, float] | None = None
 
     def set_target(
+        self, lat_deg: float, lon_deg: float, alt_amsl_m: float, vel_ned_m_s: tuple[float, float, float]
+    ) -> CommandResult:
+        """One FOLLOW_TARGET position of the target."""
+        with self.ap.lock:
+            return self._set_target(lat_deg, lon_deg, alt_amsl_m, vel_ned_m_s)
+
+    def _set_target(
         self, lat_deg: float, lon_deg: float, alt_amsl_m: float, vel_ned_m_s: tuple[float, float, float]
     ) -> CommandResult:
         ref = self.ap.core.est.ref
@@ -76,7 +88,7 @@ class FollowTarget:
             if self._hold is None:
                 self.enter()
             assert self._hold is not None
-            nav._track(self._hold, dt)
+            nav.track(self._hold, dt)
             return
         self._hold = None
         fa = math.radians(p["FLW_TGT_FA"])
@@ -89,5 +101,5 @@ class FollowTarget:
         base = tgt[2] if int(p["FLW_TGT_ALT_M"]) == 2 else home_d
         d = min(base - p["FLW_TGT_HT"], home_d - MIN_SAFETY_ALT_M)
         if math.hypot(tgt[0] - e.pn, tgt[1] - e.pe) > 1.0:
-            nav.yaw_sp = math.atan2(tgt[1] - e.pe, tgt[0] - e.pn)
-        nav._track((n, east, d), dt, v_xy=max(p["FLW_TGT_MAX_VEL"], 0.1))
+            nav.point_to(math.atan2(tgt[1] - e.pe, tgt[0] - e.pn))
+        nav.track((n, east, d), dt, v_xy=max(p["FLW_TGT_MAX_VEL"], 0.1))

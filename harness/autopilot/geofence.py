@@ -32,6 +32,11 @@ class Geofence:
         self._shapes: list[tuple[bool, list[tuple[float, float]], float]] | None = None
         """(inclusion, polygon vertices or [circle centre], circle radius or -1 for a polygon)."""
 
+    @property
+    def max_hor_m(self) -> float:
+        """The horizontal distance limit from home (``GF_MAX_HOR_DIST``; 0: none)."""
+        return self.params["GF_MAX_HOR_DIST"]
+
     def set_items(self, items: Sequence[MissionItem]) -> None:
         self.items = tuple(items)
         self._shapes = None

@@ -51,8 +51,8 @@ class AutoTakeoff:
 
     def _run(self, poll_s: float) -> None:
         while not self._stop.wait(poll_s):
-            if self.ap.arming_check() == "" and self.ap.arm().ok:
-                self.ap.takeoff(self.alt_m)
+            if self.ap.telemetry.arming_check() == "" and self.ap.action.arm().ok:
+                self.ap.action.takeoff(self.alt_m)
                 return
 
     def close(self) -> None:

@@ -30,7 +30,7 @@ from typing import Protocol
 from harness.autopilot.api import AttitudeTarget, CommandResult, Failsafe, FlightMode, LandedState, Severity
 from harness.autopilot.control import NAN
 from harness.autopilot.mathutil import G_M_S2
-from harness.autopilot.supervisor import Supervised
+from harness.autopilot.supervisor import Commander
 from harness.core.geo import quat_from_euler
 
 
@@ -39,11 +39,11 @@ class _RcSignal(Protocol):
     def rc_off(self) -> bool: ...
 
 
-class ManualHost(Supervised, Protocol):
+class ManualHost(Commander, Protocol):
     """What manual control reads of, and does to, its autopilot (``harness.autopilot.Autopilot``)."""
 
     @property
-    def failures(self) -> _RcSignal: ...
+    def failure(self) -> _RcSignal: ...
 
 
 STICK_MODES = frozenset({FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED, FlightMode.MANUAL})
@@ -65,10 +65,15 @@ def _rotate_heading(fwd: float, right: float, yaw: float) -> tuple[float, float]
 
 
 class ManualControl:
-    """The sticks of one vehicle and the stick modes; called under the autopilot's lock."""
+    """The sticks of one vehicle and the stick modes: the autopilot's ``manual_control`` service. ``set_sticks``
+    takes the autopilot's lock; the rest is called by the autopilot under it."""
 
     def __init__(self, ap: ManualHost) -> None:
         self.ap = ap
+        self.reset()
+
+    def reset(self) -> None:
+        """As at boot: centred sticks, none received (a reboot of the flight stack)."""
         self.x = self.y = self.r = 0.0
         self.z = 0.5
         self.last_ns: int | None = None
@@ -83,6 +88,10 @@ class ManualControl:
     # ------------------------------------------------------------------ input
     def set_sticks(self, x: int, y: int, z: int, r: int) -> CommandResult:
         """One MANUAL_CONTROL (raw −1000…1000 axes; 0x7FFF = axis not present)."""
+        with self.ap.lock:
+            return self._set_sticks(x, y, z, r)
+
+    def _set_sticks(self, x: int, y: int, z: int, r: int) -> CommandResult:
         if int(self.ap.params["COM_RC_IN_MODE"]) == 4:
             return CommandResult.denied("manual control ignored: COM_RC_IN_MODE is 4")
         axes = (x, y, z, r)
@@ -100,7 +109,7 @@ class ManualControl:
 
     def fresh(self) -> bool:
         """A stick input within ``COM_RC_LOSS_T`` of sim time (and not cut by an injected RC failure)."""
-        if self.last_ns is None or self.ap.failures.rc_off:
+        if self.last_ns is None or self.ap.failure.rc_off:
             return False
         return (max(self.ap.core.t_ns, 0) - self.last_ns) * 1e-9 <= self.ap.params["COM_RC_LOSS_T"]
 
@@ -114,13 +123,18 @@ class ManualControl:
             return None  # no RC by configuration: position and altitude modes hold, as before sticks existed
         return CommandResult.denied(f"{mode.name} denied: no manual control input (RC); send MANUAL_CONTROL")
 
+    def refusal(self, mode: FlightMode) -> str:
+        """Why ``mode`` may not be flown without its manual control input ('' when it may)."""
+        refused = self.refuse(mode)
+        return "" if refused is None else refused.reason
+
     # ------------------------------------------------------------------ per tick (before the flight core)
     def pre_step(self) -> None:
         ap = self.ap
         c = ap.core
         nav = c.nav
         if self.last_ns is None or not c.armed or c.mode not in STICK_MODES:
-            nav.manual_att = None
+            nav.set_manual_attitude(None)
             self._hold = None
             return
         p = ap.params
@@ -128,13 +142,12 @@ class ManualControl:
         fwd, right, yaw_in = deadzone(self.x, dz), deadzone(self.y, dz), deadzone(self.r, dz)
         thr = deadzone(self.z * 2.0 - 1.0, dz)  # -1 … 1, 0 = centre
         on_ground = c.landed_state == LandedState.ON_GROUND
-        nav.wants_climb = on_ground and thr > 0.0
-        nav.landing = thr < -0.5 and not on_ground
+        nav.set_vertical_intent(on_ground and thr > 0.0, thr < -0.5 and not on_ground)
         yaw_rate = yaw_in * math.radians(p["MPC_MAN_Y_MAX"])
         if c.mode in _ATTITUDE_MODES:
             self._attitude(fwd, right, thr, yaw_rate)
             return
-        nav.manual_att = None
+        nav.set_manual_attitude(None)
         self._sticks = (fwd, right, thr, yaw_rate)
 
     def _attitude(self, fwd: float, right: float, thr: float, yaw_rate: float) -> None:
@@ -151,14 +164,14 @@ class ManualControl:
         if c.landed_state == LandedState.ON_GROUND and thr <= 0.0:
             thrust = 0.0
         q = quat_from_euler(right * tilt, -fwd * tilt, self._yaw_sp)
-        c.nav.manual_att = AttitudeTarget(q, thrust, (0.0, 0.0, yaw_rate))
+        c.nav.set_manual_attitude(AttitudeTarget(q, thrust, (0.0, 0.0, yaw_rate)))
 
-    def _setpoint(self, dt: float) -> None:
+    def setpoint(self, dt: float) -> None:
         """POSCTL / ALTCTL: the navigator's setpoint from the sticks (the navigator calls it every update)."""
         c = self.ap.core
         nav = c.nav
         if self.last_ns is None:  # COM_RC_IN_MODE 4 (no sticks, e.g. the ArduCopter personality): hold
-            nav._track(nav.target, dt)
+            nav.track(nav.target, dt)
             return
         p = self.ap.params
         e = c.est

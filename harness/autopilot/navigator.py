@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from harness.autopilot.api import (
@@ -110,7 +110,8 @@ class Navigator:
         e = self.est
         self.tr.reset((e.pn, e.pe, e.pd), (e.vn, e.ve, e.vd))
 
-    def _track(self, target: Vec3, dt: float, v_xy: float | None = None, v_dn: float | None = None) -> None:
+    def track(self, target: Vec3, dt: float, v_xy: float | None = None, v_dn: float | None = None) -> None:
+        """Fly the smooth setpoint towards ``target`` this step (the modes made elsewhere call it too)."""
         p = self.params
         self.tr.step(
             target[0],
@@ -182,6 +183,64 @@ class Navigator:
 
     takeoff_alt_m = 2.5
 
+    # ---------- commands (the commander and the modes made elsewhere give them; nothing else writes fields) ----------
+    def load_mission(self, items: Sequence[MissionItem]) -> None:
+        """A new mission: start at the item marked current (else the first), nothing reached."""
+        self.items = list(items)
+        cur = next((i for i, it in enumerate(items) if it.current), 0)
+        self.current, self.reached, self.finished, self.phase = cur, [], False, MissionPhase.START
+
+    def set_current(self, seq: int) -> None:
+        """Go on with item ``seq`` (an index into ``items``)."""
+        self.current, self.phase, self.finished = seq, MissionPhase.START, False
+
+    def set_home(self, home_ned: Vec3) -> None:
+        self.home = home_ned
+
+    def set_takeoff_alt(self, alt_m: float) -> None:
+        self.takeoff_alt_m = alt_m
+
+    def set_cruise(self, speed_m_s: float) -> None:
+        self.cruise_m_s = speed_m_s
+
+    def point_nose(self, yaw_rad: float | None) -> None:
+        """Turn to ``yaw_rad`` at the auto yaw rate and keep it (None: the mode chooses)."""
+        self.yaw_target = yaw_rad
+
+    def fly_attitude(self, target: AttitudeTarget | None) -> None:
+        """OFFBOARD flies this attitude target instead of a position / velocity setpoint."""
+        self.offboard_att = target
+        self.offboard_sp = None
+
+    def set_manual_attitude(self, target: AttitudeTarget | None) -> None:
+        """The sticks' attitude and thrust in STABILIZED / MANUAL (None: not flying on the sticks)."""
+        self.manual_att = target
+
+    def set_vertical_intent(self, wants_climb: bool, landing: bool) -> None:
+        """The sticks ask to leave the ground / to land (what the land detector and the motors idle check read)."""
+        self.wants_climb = wants_climb
+        self.landing = landing
+
+    def point_to(self, yaw_rad: float) -> None:
+        """This step's yaw setpoint (a mode made elsewhere pointing the nose at something)."""
+        self.yaw_sp = yaw_rad
+
+    def set_mode_hook(self, mode: FlightMode, hook: Callable[[float], None]) -> None:
+        """Let ``hook(dt)`` make the setpoint in ``mode`` (sticks, follow target): it calls :meth:`track`."""
+        self.mode_hooks[mode] = hook
+
+    def take_reached(self) -> list[int]:
+        """Items reached since the last call."""
+        out = self.new_reached
+        self.new_reached = []
+        return out
+
+    def take_mission_done(self) -> bool:
+        """Whether the mission finished since the last call."""
+        done = self.mission_done
+        self.mission_done = False
+        return done
+
     def _stop_point(self) -> Vec3:
         e = self.est
         return (e.pn, e.pe, e.pd)
@@ -210,7 +269,7 @@ class Navigator:
             hook(dt)
             return self.sp
         if m in (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.TAKEOFF):
-            self._track(self.target, dt)
+            self.track(self.target, dt)
         elif m == FlightMode.LAND:
             self._land(dt)
         elif m == FlightMode.RTL:
@@ -260,13 +319,13 @@ class Navigator:
     def _rtl(self, dt: float, landed: bool) -> bool:
         """One RTL step; True once it has landed."""
         if self.rtl_phase == RtlPhase.CLIMB:
-            self._track(self.target, dt)
+            self.track(self.target, dt)
             if abs(self.est.pd - self.target[2]) < self.params["NAV_MC_ALT_RAD"]:
                 self.rtl_phase = RtlPhase.RETURN
                 self.target = (self.home[0], self.home[1], self.target[2])
                 self.yaw_target = math.atan2(self.home[1] - self.est.pe, self.home[0] - self.est.pn)
         elif self.rtl_phase == RtlPhase.RETURN:
-            self._track(self.target, dt)
+            self.track(self.target, dt)
             e = self.est
             if math.hypot(e.pn - self.target[0], e.pe - self.target[1]) < 0.5 and math.hypot(e.vn, e.ve) < 0.5:
                 self.rtl_phase = RtlPhase.LAND
@@ -345,7 +404,7 @@ class Navigator:
             if not self.finished:
                 self.finished = True
                 self.mission_done = True
-            self._track(self.target, dt)
+            self.track(self.target, dt)
             return
         it = self.items[self.current]
         cmd = it.command
@@ -376,14 +435,14 @@ class Navigator:
                     self.yaw_target = math.atan2(tgt[1] - e.pe, tgt[0] - e.pn)
         ph = self.phase
         if ph in (MissionPhase.TAKEOFF, MissionPhase.PRE_TAKEOFF):
-            self._track(self.target, dt)
+            self.track(self.target, dt)
             if self.takeoff_reached():
                 self.wants_climb = False
                 if ph == MissionPhase.TAKEOFF:
                     self._reach()
                 self.phase = MissionPhase.START
         elif ph == MissionPhase.GOTO:
-            self._track(self.target, dt)
+            self.track(self.target, dt)
             rad = float(it.param2) if cmd == MavCmd.NAV_WAYPOINT and it.param2 > 0 else p["NAV_ACC_RAD"]
             dh = math.hypot(self.target[0] - e.pn, self.target[1] - e.pe)
             if dh < rad and abs(self.target[2] - e.pd) < p["NAV_MC_ALT_RAD"] and self._setpoint_arrived():
@@ -397,7 +456,7 @@ class Navigator:
                     self.new_reached.append(it.seq)
                     self.reached.append(it.seq)
         elif ph == MissionPhase.WAIT:
-            self._track(self.target, dt)
+            self.track(self.target, dt)
             self.timer_s -= dt
             if self.timer_s <= 0.0:
                 if cmd == MavCmd.NAV_DELAY:

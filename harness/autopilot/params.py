@@ -247,7 +247,9 @@ class Params:
         self._subscribers: list[Callable[[str, float], None]] = []
         self.version = 0
         """Bumped on every change (hot loops compare it to re-read cached values)."""
-        for name, value in (overrides or {}).items():
+        self.overrides: dict[str, float] = dict(overrides or {})
+        """The values given over the defaults at creation (the scenario's): what a reboot starts from again."""
+        for name, value in self.overrides.items():
             result = self.set(name, value)
             if not result.ok:
                 raise ScenarioError(f"parameter override {name}={value}: {result.reason}")

@@ -36,7 +36,7 @@ from harness.autopilot.mavlink.personality import core_param_defaults
 from harness.autopilot.mavlink.runlocal import RunLocalPeers
 from harness.autopilot.mavlink.server import MavlinkServer
 from harness.autopilot.mavlink.transport import PortsConfig
-from harness.autopilot.params import Params
+from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.core import lifeline
 from harness.core.clock import WALL, Clock
 from harness.core.errors import HarnessError, ScenarioError
@@ -138,8 +138,8 @@ def attach_mavlink(
         firmware=firmware,
         trust_unsigned=trust_unsigned,
     )
-    own = getattr(server.dialect, "params", None)  # a personality's own table (ArduCopter's names)
-    if run_dir is not None and isinstance(own, Params) and own is not ap.params:
+    own = server.dialect.own_params  # a personality's own table (ArduCopter's names)
+    if run_dir is not None and own is not None:
         for refused in persist_params(own, run_dir, ap.vehicle, firmware.value):
             log.warning("vehicle %d: stored parameter not restored: %s", ap.vehicle, refused)
     if hub is None:
@@ -188,11 +188,36 @@ def _physics(path: Path, vehicles: Sequence[int]) -> Physics:
     return Physics(PhysicsConfig.from_json(data), vehicles)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    lifeline.hold_on()  # started by a run (Children): die with it, before anything else
+def _config_from_flags(a: argparse.Namespace) -> AutopilotProcessConfig:
+    """The configuration the flags of a hand-started process give (ValueError / ScenarioError when bad)."""
+    return AutopilotProcessConfig(
+        address=a.address,
+        vehicles=tuple(int(v) for v in a.vehicles.split(",") if v.strip()),
+        api_port_base=a.api_port_base,
+        api_local_port_base=a.api_local_port_base,
+        gcs_port=a.gcs_port,
+        run_dir=str(a.run_dir) if a.run_dir is not None else None,
+        params={int(k): v for k, v in json.loads(a.params).items()},
+        signing_key_file=str(a.signing_key_file) if a.signing_key_file is not None else None,
+        trust_run=a.trust_run,
+        ground_truth=a.ground_truth,
+        firmware=tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip()),
+        tcp_port_base=a.tcp_port_base,
+        tcp_port_step=a.tcp_port_step,
+        gcs_extra_ports=tuple(int(p) for p in a.gcs_extra_ports.split(",") if p.strip()),
+        tcp_sim_clients=a.tcp_sim_clients,
+        physics=str(a.physics) if a.physics is not None else None,
+        name=a.name,
+    )
+
+
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m harness.autopilot.sitl", description=__doc__)
-    ap.add_argument("--address", required=True, help="channel address")
-    ap.add_argument("--vehicles", required=True, help="comma-separated vehicle indices")
+    ap.add_argument(
+        "--config", type=Path, default=None, metavar="FILE", help="all of the below, as harness run writes it"
+    )
+    ap.add_argument("--address", help="channel address")
+    ap.add_argument("--vehicles", help="comma-separated vehicle indices")
     ap.add_argument("--api-port-base", type=int, default=14540, help="send to this port + i (0: only to peers)")
     ap.add_argument("--api-local-port-base", type=int, default=0, help="listen on this port + i (0: any free port)")
     ap.add_argument("--gcs-port", type=int, default=14550)
@@ -218,41 +243,63 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="step these vehicles' physics here too, configured by FILE (JSON, written by harness run)",
     )
     ap.add_argument("--name", default=None, help="this process's name in the channel")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    lifeline.hold_on()  # started by a run (Children): die with it, before anything else
+    ap = _parser()
     a = ap.parse_args(argv)
+    if a.config is None and (a.address is None or a.vehicles is None):
+        ap.error("give --config FILE, or --address and --vehicles")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        vehicles = [int(v) for v in a.vehicles.split(",") if v.strip()]
-        overrides = {int(k): v for k, v in json.loads(a.params).items()}
-        signing = (
-            SigningConfig(read_signing_key(a.signing_key_file, "--signing-key-file")) if a.signing_key_file else None
-        )
-        extra = tuple(int(p) for p in a.gcs_extra_ports.split(",") if p.strip())
-        firmwares = tuple(Firmware.parse(f, "--firmware") for f in a.firmware.split(",") if f.strip())
-        physics = _physics(a.physics, vehicles) if a.physics is not None else None
+        cfg = AutopilotProcessConfig.read(a.config) if a.config is not None else _config_from_flags(a)
     except (ValueError, json.JSONDecodeError) as exc:
         log.error("autopilot process: bad argument: %s", exc)
         return 2
-    except HarnessError as exc:  # a bad signing key file, an unknown firmware: one line, no traceback
+    except HarnessError as exc:  # a configuration that is not one, an unknown firmware: one line, no traceback
         log.error("autopilot process: %s", exc)
         return 2
-    base = PortsConfig(api_port_base=a.api_port_base, api_local_port_base=a.api_local_port_base, gcs_port=a.gcs_port)
-    trust = RunLocalPeers(a.trust_run) if a.trust_run else None
+    return serve(cfg)
+
+
+def serve(cfg: AutopilotProcessConfig) -> int:
+    """Run the autopilots of ``cfg`` until the run ends: 0, 1 on a failed run, 2 on a bad configuration."""
+    vehicles = list(cfg.vehicles)
+    try:
+        signing = (
+            SigningConfig(read_signing_key(Path(cfg.signing_key_file), "--signing-key-file"))
+            if cfg.signing_key_file
+            else None
+        )
+        physics = _physics(Path(cfg.physics), vehicles) if cfg.physics is not None else None
+    except HarnessError as exc:  # a bad signing key file, an unreadable physics file: one line, no traceback
+        log.error("autopilot process: %s", exc)
+        return 2
+    base = PortsConfig(
+        api_port_base=cfg.api_port_base, api_local_port_base=cfg.api_local_port_base, gcs_port=cfg.gcs_port
+    )
+    trust = RunLocalPeers(cfg.trust_run) if cfg.trust_run else None
+    run_dir = Path(cfg.run_dir) if cfg.run_dir is not None else None
 
     def config_for(v: int) -> AutopilotConfig:
-        fw = firmware_of(firmwares, v)
-        params = {**core_param_defaults(fw), **overrides.get(v, {})}
-        return AutopilotConfig(vehicle=v, use_ground_truth=a.ground_truth, params=params)
+        fw = firmware_of(cfg.firmware, v)
+        params = {**core_param_defaults(fw), **cfg.params.get(v, {})}
+        return AutopilotConfig(vehicle=v, use_ground_truth=cfg.ground_truth, params=params)
 
     hub = MavlinkHub()
     attached: list[_Attached] = []
     try:
         aps = make_autopilots(vehicles, config_for)
         for v, autopilot in aps.items():
-            fw = firmware_of(firmwares, v)
-            ports = vehicle_ports(base, fw, a.tcp_port_base, a.tcp_port_step, extra, a.tcp_sim_clients)
-            attached.append(attach_mavlink(autopilot, ports, a.run_dir, signing, hub, fw, trust))
+            fw = firmware_of(cfg.firmware, v)
+            ports = vehicle_ports(
+                base, fw, cfg.tcp_port_base, cfg.tcp_port_step, cfg.gcs_extra_ports, cfg.tcp_sim_clients
+            )
+            attached.append(attach_mavlink(autopilot, ports, run_dir, signing, hub, fw, trust))
         hub.start()  # once every server is in: an add to a running hub waits for its thread
-        run_autopilots(a.address, vehicles, autopilots=aps, name=a.name, physics=physics)
+        run_autopilots(cfg.address, vehicles, autopilots=aps, name=cfg.name, physics=physics)
     except HarnessError as exc:
         log.error("%s", exc)
         return 1

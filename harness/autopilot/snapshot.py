@@ -27,6 +27,7 @@ def build_state(
     failsafe: Failsafe,
     preflight_ok: bool,
     failures: FailureInjector,
+    grippers_grabbed: tuple[int, ...] = (),
 ) -> VehicleState:
     e = c.est
     nav = c.nav
@@ -92,4 +93,6 @@ def build_state(
         throttle=c.collective,
         max_speed_m_s=nav.cruise_m_s,
         failsafe=failsafe,
+        fence_max_hor_m=c.fence.max_hor_m,
+        grippers_grabbed=grippers_grabbed,
     )

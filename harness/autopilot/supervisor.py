@@ -8,21 +8,58 @@ under the autopilot's lock (``Supervisor.check`` at ``AutopilotConfig.supervise_
 
 from __future__ import annotations
 
+import threading
 from typing import Protocol
 
-from harness.autopilot.api import Failsafe, FlightMode, LandedState, Severity
+from harness.autopilot.api import Failsafe, FlightMode, GeoPoint, LandedState, Severity
 from harness.autopilot.flight import FlightCore
 from harness.autopilot.params import Params
+from harness.core.clock import Clock
 from harness.core.geo import Vec3
 
 
+class OffboardStatus(Protocol):
+    """What the supervisor reads of the offboard service."""
+
+    def age_s(self) -> float:
+        """Sim seconds since the last offboard setpoint."""
+        ...
+
+    def climbing(self) -> bool:
+        """OFFBOARD asks to leave the ground (the auto-disarm waits)."""
+        ...
+
+    def flies_attitude(self) -> bool:
+        """Whether OFFBOARD flies attitude targets (the last offboard input was SET_ATTITUDE_TARGET)."""
+        ...
+
+
+class StickStatus(Protocol):
+    """What the supervisor reads of manual control."""
+
+    def refusal(self, mode: FlightMode) -> str:
+        """Why ``mode`` may not be flown without its manual control input ('' when it may)."""
+        ...
+
+    def fresh(self) -> bool:
+        """A stick input within ``COM_RC_LOSS_T``."""
+        ...
+
+
 class Supervised(Protocol):
-    """What the supervisor reads of, and may do to, its autopilot (``harness.autopilot.Autopilot``)."""
+    """What the supervisor and the add-on modes read of, and may do to, their autopilot
+    (``harness.autopilot.autopilot.Autopilot``): the flight core and the commander's state."""
 
     core: FlightCore
     params: Params
     home_ned: Vec3 | None
     failsafe: Failsafe
+
+    @property
+    def offboard(self) -> OffboardStatus: ...
+
+    @property
+    def manual_control(self) -> StickStatus: ...
 
     def say(self, severity: Severity, text: str) -> None:
         """Queue a status text."""
@@ -36,16 +73,29 @@ class Supervised(Protocol):
         """Disarm now and say why."""
         ...
 
-    def offboard_age_s(self) -> float:
-        """Wall-clock seconds since the last offboard setpoint."""
+    def state_changed(self) -> None:
+        """Drop the cached state snapshot."""
         ...
-
-    def offboard_climbing(self) -> bool: ...
 
     def to_local(self, lat_deg: float, lon_deg: float) -> tuple[float, float]: ...
 
-    def manual_refusal(self, mode: FlightMode) -> str:
-        """Why ``mode`` may not be flown without its manual control input ('' when it may)."""
+
+class Commander(Supervised, Protocol):
+    """What the services (``action``, ``mission``, ``offboard``, ...) act through: the supervised state,
+    the lock that serialises commands with ``step()``, home and the wall clock."""
+
+    vehicle: int
+    lock: threading.Lock
+    wall: Clock
+    home: GeoPoint | None
+    supervisor: Supervisor
+
+    def set_home_here(self) -> None:
+        """Home where the vehicle is now (on arming, and DO_SET_HOME with 'current')."""
+        ...
+
+    def restart(self) -> None:
+        """A new flight stack on the same parameters, plans and sim time (a reboot; disarmed, under the lock)."""
         ...
 
 
@@ -69,10 +119,10 @@ def arming_check(ap: Supervised) -> str:
             return "position estimate not converged"
     if c.battery.remaining < p["BAT_LOW_THR"]:
         return f"battery low ({c.battery.remaining:.0%})"
-    refusal = ap.manual_refusal(c.mode)
+    refusal = ap.manual_control.refusal(c.mode)
     if refusal:
         return refusal
-    if c.mode == FlightMode.OFFBOARD and not ap.offboard_age_s() <= p["COM_OF_LOSS_T"]:
+    if c.mode == FlightMode.OFFBOARD and not ap.offboard.age_s() <= p["COM_OF_LOSS_T"]:
         return "offboard mode without a recent setpoint"
     if c.mode == FlightMode.MISSION and not c.nav.items:
         return "mission mode without a mission"
@@ -106,7 +156,7 @@ class Supervisor:
                 self.landed_since_ns = t
             waited = (t - self.landed_since_ns) * 1e-9
             limit = p["COM_DISARM_LAND"] if self.was_airborne else p["COM_DISARM_PRFLT"]
-            if limit > 0 and waited > limit and not nav.wants_climb and not ap.offboard_climbing():
+            if limit > 0 and waited > limit and not nav.wants_climb and not ap.offboard.climbing():
                 ap.cut_motors("Disarmed after landing" if self.was_airborne else "Disarmed: no takeoff")
                 return
         else:
@@ -116,8 +166,7 @@ class Supervisor:
         if c.mode == FlightMode.TAKEOFF and in_air and nav.takeoff_reached():
             ap.say(Severity.INFO, "Takeoff complete")
             ap.switch_mode(FlightMode.HOLD)
-        if c.mode == FlightMode.MISSION and nav.mission_done:
-            nav.mission_done = False
+        if c.mode == FlightMode.MISSION and nav.take_mission_done():
             ap.say(Severity.INFO, "Mission finished")
             if in_air and not nav.landing:
                 ap.switch_mode(FlightMode.HOLD)
@@ -125,7 +174,7 @@ class Supervisor:
             return
         self._battery(ap)
         if c.mode == FlightMode.OFFBOARD:
-            lost_s = ap.offboard_age_s()
+            lost_s = ap.offboard.age_s()
             if lost_s > p["COM_OF_LOSS_T"]:
                 ap.failsafe = Failsafe.OFFBOARD_LOSS
                 act = int(p["COM_OBL_RC_ACT"])

@@ -48,6 +48,8 @@ class TickState(enum.Enum):
     ANSWERED = "answered"
     """Every END-TICK-AC is in (a child has sent them up); the tick ends when its phases allow."""
 
+    __hash__ = object.__hash__  # a table key looked up every tick: identity, not Enum's hash of the name
+
 
 class PhaseState(enum.Enum):
     """The subscriber half of a tick. Phase 1 may outlive its tick (``overlap_phase1``): the peers still in
@@ -63,6 +65,8 @@ class PhaseState(enum.Enum):
     """Every END-TICK-0 is in (a child has sent its own up)."""
     ONE = "phase 1"
     """BEGIN-TICK-1 sent for this tick."""
+
+    __hash__ = object.__hash__
 
 
 class PeerLink(enum.Enum):

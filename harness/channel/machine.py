@@ -38,6 +38,7 @@ from harness.channel.events import (
     TickState,
 )
 from harness.channel.membership import Membership
+from harness.channel.state import PhaseEvent, TickEvent, TickProgress
 from harness.channel.watchdog import JOIN, Watchdog
 from harness.wire import protocol as p
 
@@ -76,8 +77,9 @@ class TickMachine(Membership):
         self._trace_fn = trace
         self.faults: list[Fault] = []
         self.ticks_done = 0
-        self.tick_state = TickState.IDLE
-        self.phase = PhaseState.NONE
+        self.state = TickProgress()
+        """Both halves of the current tick (``state.tick``, ``state.phase``), moved only by the tables of
+        :mod:`harness.channel.state`."""
         self.t_ns = -1
         self.tick = -1
         self.p1_t_ns = -1
@@ -93,8 +95,13 @@ class TickMachine(Membership):
         self._positions: dict[int, p.Vec3] = {}
 
     @property
+    def phase1_running(self) -> bool:
+        """Peers are still in the last phase 1 (it may run beside physics: ``overlap_phase1``)."""
+        return bool(self.wait1)
+
+    @property
     def in_tick(self) -> bool:
-        return self.tick_state is not TickState.IDLE
+        return self.state.tick is not TickState.IDLE
 
     def drain(self) -> list[Action]:
         out, self.actions = self.actions, []
@@ -119,7 +126,7 @@ class TickMachine(Membership):
         if kind == p.PeerKind.PHYSICS:
             peer.upstream = peer.admitted = True
             self.set_upstream(peer)
-        elif not self.in_tick or self.tick_state is TickState.AWAITING_HOLDERS:
+        elif not self.in_tick or self.state.tick is TickState.AWAITING_HOLDERS:
             self._admit(peer)
             self._progress()
         else:
@@ -226,7 +233,7 @@ class TickMachine(Membership):
         del self.wait_ac[peer]
         self._answered(peer)
         if not self.wait_ac:
-            self.tick_state = _ANSWERED
+            self.state.on(TickEvent.ANSWERED)
             if self.role is _CHILD:
                 self._send_etas()  # a child answers for its subtree as soon as it can
 
@@ -281,17 +288,17 @@ class TickMachine(Membership):
     def from_upstream(self, msg: p.Message) -> None:
         """A message from physics or the parent channel."""
         if isinstance(msg, p.BeginTickAC):
-            if self.tick_state is _IDLE:
+            if self.state.tick is _IDLE:
                 self._begin_tick(msg.t_ns, msg.tick)
-            elif msg.t_ns != self.t_ns or self.tick_state is not _COLLECTING:
+            elif msg.t_ns != self.t_ns or self.state.tick is not _COLLECTING:
                 raise RunFailed(f"upstream sent BEGIN-TICK-AC for t={msg.t_ns} ns while tick t={self.t_ns} ns runs")
             self._bta.append(msg)
             self._bta_count = msg.count
             self._positions[msg.vehicle] = msg.position_ned_m
-            if len(self._bta) < msg.count and (self.phase is not _PENDING or self.in_process_peers):
+            if len(self._bta) < msg.count and (self.state.phase is not _PENDING or self.in_process_peers):
                 return  # more of this tick to come, and nothing can move before they are in
         elif isinstance(msg, p.BeginTick0):  # child: the parent runs phase 0 now
-            if self.tick_state is TickState.IDLE:
+            if self.state.tick is TickState.IDLE:
                 self._begin_tick(msg.t_ns, msg.tick)
             self._start_phase0()
         elif isinstance(msg, p.BeginTick1):
@@ -312,7 +319,7 @@ class TickMachine(Membership):
     def local_only(self, begin_ticks: list[p.BeginTickAC]) -> PeerState | None:
         """The in-process peer if this tick is nothing but its step (no phase, every vehicle its own): the
         shell then steps it and calls :meth:`local_tick_done` — 4 ticks out of 5 in ``harness run``."""
-        if not begin_ticks or self.tick_state is not TickState.IDLE:
+        if not begin_ticks or self.state.tick is not TickState.IDLE:
             return None
         peer = self.holders().get(begin_ticks[0].vehicle)
         if peer is None or peer.link is not PeerLink.IN_PROCESS:
@@ -402,23 +409,26 @@ class TickMachine(Membership):
         if t_ns < self.t_ns:
             raise RunFailed(f"upstream went back in time ({t_ns} ns < {self.t_ns} ns)")
         self._admit_pending()
-        self.tick_state = TickState.COLLECTING
+        state = self.state
+        state.on(TickEvent.BEGIN)
         self.t_ns, self.tick = t_ns, tick
         self._bta, self._bta_count = [], 0
         self._etas = {}
         self._packets, self._positions = [], {}
         root = self.role is Role.ROOT
-        self.phase = PhaseState.PENDING if root and tick % self.phase_every == 0 else PhaseState.NONE
+        state.on_phase(
+            PhaseEvent.TICK_WITH_PHASES if root and tick % self.phase_every == 0 else PhaseEvent.TICK_WITHOUT_PHASES
+        )
 
     def _phase0_may_start(self) -> bool:
         """Phase 0 starts once the previous phase 1 is over and after the autopilots have stepped this tick
         (when some are in-process): what they send their missions over MAVLink at this tick is then in the missions' sockets
         before phase 0 begins, so a script reads it in this phase whatever the machine's pace."""
-        if self.phase is not _PENDING or self.wait1:
+        if self.state.phase is not _PENDING or self.wait1:
             return False
         if not self.in_process_peers:
             return True
-        state = self.tick_state
+        state = self.state.tick
         if state is _COLLECTING or state is _AWAITING:
             return False
         # with autopilots both here and in other processes (``harness run --workers``) the others must have
@@ -430,13 +440,13 @@ class TickMachine(Membership):
         holders = self.holders()
         missing = sorted({m.vehicle for m in self._bta} - holders.keys())
         if missing:
-            if self.tick_state is not TickState.AWAITING_HOLDERS:
-                self.tick_state = TickState.AWAITING_HOLDERS
+            if self.state.tick is not TickState.AWAITING_HOLDERS:
+                self.state.on(TickEvent.HOLDER_MISSING)
                 self.watchdog.watch(JOIN, self.join_timeout_s)
                 log.info("channel %s: waiting for autopilots of vehicles %s", self.name, missing)
             return
         self.watchdog.clear(JOIN)
-        self.tick_state = TickState.STEPPING
+        self.state.on(TickEvent.ROUTED)
         by_peer: dict[PeerState, list[p.BeginTickAC]] = {}
         for m in self._bta:
             by_peer.setdefault(holders[m.vehicle], []).append(m)
@@ -456,9 +466,9 @@ class TickMachine(Membership):
         self.actions += local  # in-process autopilots answer while the remote ones and the missions work
 
     def _start_phase0(self) -> None:
-        if self.phase in (PhaseState.ZERO, PhaseState.ZERO_DONE, PhaseState.ONE):
+        if self.state.phase in (PhaseState.ZERO, PhaseState.ZERO_DONE, PhaseState.ONE):
             return
-        self.phase = PhaseState.ZERO
+        self.state.on_phase(PhaseEvent.BEGIN0)
         self._trace("bt0", None)
         peers = self.active(p.PeerKind.TYPE0, p.PeerKind.CHILD)
         if not peers:
@@ -482,7 +492,7 @@ class TickMachine(Membership):
             self.send_raw(peer, data)
 
     def _start_phase1(self, parent_msg: p.BeginTick1 | None) -> None:
-        self.phase = PhaseState.ONE
+        self.state.on_phase(PhaseEvent.BEGIN1)
         self.p1_t_ns, self.p1_tick = self.t_ns, self.tick
         carrying = bool(parent_msg.packets if parent_msg is not None else self._packets)
         t = self.t_ns
@@ -510,35 +520,35 @@ class TickMachine(Membership):
 
     def _progress(self) -> None:
         """Advance the tick as far as the answers received allow (called after every event: kept cheap)."""
-        state = self.tick_state
+        state = self.state.tick
         if state is _IDLE:
             return
-        if self.phase is _PENDING and self._phase0_may_start():
+        if self.state.phase is _PENDING and self._phase0_may_start():
             self._start_phase0()  # the previous phase 1 has just ended
         if (state is _COLLECTING or state is _AWAITING) and 0 < self._bta_count <= len(self._bta):
             self._route_ticks()
-            if self.phase is _PENDING and self._phase0_may_start():
+            if self.state.phase is _PENDING and self._phase0_may_start():
                 self._start_phase0()
         child = self.role is _CHILD
-        if self.phase is _ZERO and not self.wait0:
+        if self.state.phase is _ZERO and not self.wait0:
             if child:
-                self.phase = PhaseState.ZERO_DONE
+                self.state.on_phase(PhaseEvent.END0)
                 assert self.up is not None
                 self.send(self.up, p.EndTick0(self.t_ns))
-            elif self.tick_state is _ANSWERED:
-                self.phase = PhaseState.ZERO_DONE
+            elif self.state.tick is _ANSWERED:
+                self.state.on_phase(PhaseEvent.END0)
         if child:
             self._progress_child()
-        elif self.tick_state is _ANSWERED:
+        elif self.state.tick is _ANSWERED:
             self._progress_root()
 
     def _progress_root(self) -> None:
-        phase = self.phase
+        phase = self.state.phase
         if phase is PhaseState.PENDING or phase is PhaseState.ZERO:
             return
         if phase is PhaseState.ZERO_DONE:
             self._start_phase1(None)
-        if self.phase is PhaseState.ONE and self.wait1 and not self._may_overlap_phase1():
+        if self.state.phase is PhaseState.ONE and self.wait1 and not self._may_overlap_phase1():
             return
         self._finish_tick()
 
@@ -548,12 +558,12 @@ class TickMachine(Membership):
         return self.overlap_phase1 and all(peer.kind != p.PeerKind.CHILD for peer in self.wait1)
 
     def _progress_child(self) -> None:
-        if self.phase is PhaseState.ONE:
+        if self.state.phase is PhaseState.ONE:
             if not self.wait1:
                 assert self.up is not None
                 self.send(self.up, p.EndTick1(self.t_ns))
                 self._end_tick()
-        elif self.phase is PhaseState.NONE and self.tick_state is TickState.ANSWERED:
+        elif self.state.phase is PhaseState.NONE and self.state.tick is TickState.ANSWERED:
             self._end_tick()  # a tick without phases ends when the autopilots have answered
 
     def _send_etas(self) -> None:
@@ -572,7 +582,7 @@ class TickMachine(Membership):
         self._end_tick()
 
     def _end_tick(self) -> None:
-        self.tick_state = TickState.IDLE
+        self.state.on(TickEvent.END)
         self.ticks_done += 1
         self._admit_pending()
 

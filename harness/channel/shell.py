@@ -250,7 +250,7 @@ class Channel:
                 # Read what came in between (WAKE of a mission left out by its lookahead, BYE, HELLO), and let
                 # the phase 1 that ran beside physics end before this phase 0 begins.
                 self._poll_once(0.0)
-                while machine.wait1:
+                while machine.phase1_running:
                     self._poll_once(self._watchdog.timeout_s())
             else:
                 local = machine.local_only(begin_ticks)

@@ -23,7 +23,7 @@ from harness.record.sample import VehicleSample
 from harness.record.world import WorldRecorder
 
 if TYPE_CHECKING:
-    from harness.autopilot.api import AutopilotApi
+    from harness.autopilot.services import System
     from harness.record.rrd import RrdRecorder
 
 log = logging.getLogger(__name__)
@@ -184,7 +184,7 @@ class WorldTee:
             self._mcap_failed(exc)
         self._guard(lambda v: v.event(t_ns, kind, detail))
 
-    def attach_autopilots(self, aps: Mapping[int, AutopilotApi]) -> None:
+    def attach_autopilots(self, aps: Mapping[int, System]) -> None:
         self._guard(lambda v: v.attach_autopilots(aps))
 
     def flush(self) -> None:

@@ -22,18 +22,13 @@ from urllib.parse import quote
 
 from harness.core import lifeline
 from harness.core.errors import ScenarioError
+from harness.core.freeport import free_tcp_port
 from harness.record.sink import INSTALL_HINT, rerun_available
 
 
 class ViewMode(enum.Enum):
     NATIVE = "native"
     WEB = "web"
-
-
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
 
 
 def _check_free(port: int, option: str) -> None:
@@ -85,7 +80,7 @@ class WebViewer:
         require_rerun("the web viewer")
         if port:
             _check_free(port, option)
-        self.port = port or free_port()
+        self.port = port or free_tcp_port()
         self._started = False
 
     def url(self, connect_to: str) -> str:
@@ -147,8 +142,8 @@ def serve_file_web(rrd: Path, web_port: int | None = None) -> tuple[subprocess.P
     require_rerun("the web viewer")
     if web_port:
         _check_free(web_port, "--port")
-    port = web_port or free_port()
-    grpc_port = free_port()
+    port = web_port or free_tcp_port()
+    grpc_port = free_tcp_port()
     proc = subprocess.Popen(
         [rerun_executable(), "--serve-web", "--web-viewer-port", str(port), "--port", str(grpc_port), str(rrd)],
         stdin=subprocess.DEVNULL,

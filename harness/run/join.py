@@ -17,7 +17,6 @@ every mission here exited 0.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import socket
@@ -28,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from harness.autopilot.firmware import Firmware
+from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.channel import Channel, ChannelConfig
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError, stop_reason
@@ -174,30 +174,21 @@ def _start_missions(plan: JoinPlan, sup: Children, address: str, env: dict[str, 
 
 
 def _autopilot_argv(plan: JoinPlan, address: str, api_base: int, gcs: int) -> list[str]:
-    return [
-        sys.executable,
-        "-m",
-        "harness.autopilot.sitl",
-        "--address",
-        address,
-        "--vehicles",
-        ",".join(str(i) for i in plan.indices),
-        "--api-port-base",
-        "0",
-        "--api-local-port-base",
-        str(api_base),
-        "--gcs-port",
-        str(gcs),
-        "--run-dir",
-        str(plan.out),
-        "--params",
-        json.dumps({}),
-        "--firmware",
-        plan.firmware.value,
-        "--tcp-port-base",
-        str(api_base),
-        "--tcp-sim-clients",
-    ]
+    """The autopilot process of this machine's vehicles, configured by ``<out>/autopilot.json``."""
+    config = AutopilotProcessConfig(
+        address=address,
+        vehicles=tuple(plan.indices),
+        api_port_base=0,
+        api_local_port_base=api_base,
+        gcs_port=gcs,
+        run_dir=str(plan.out),
+        firmware=(plan.firmware,),
+        tcp_port_base=api_base,
+        tcp_sim_clients=True,
+    )
+    config_file = plan.out / "autopilot.json"
+    config_file.write_bytes(config.to_json())
+    return [sys.executable, "-m", "harness.autopilot.sitl", "--config", str(config_file)]
 
 
 def _wait(predicate: Callable[[], bool], timeout_s: float, why: str, clock: Clock) -> None:

@@ -4,7 +4,7 @@ Processes of a run::
 
     harness run (this process)     root channel + recorder + progress; physics and autopilots of the first share
       ├─ autopilot host (each)     physics, autopilots and MAVLink servers of one more share (--workers,
-      │                            python -m harness.autopilot.sitl --physics RUN/physics.json)
+      │                            python -m harness.autopilot.sitl --config RUN/autopilot.json)
       ├─ network (optional)        the type-1 network subscriber
       └─ mission i (per vehicle)   harness mission SCRIPT on the sim clock (type 0)
 
@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware
+from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.channel import Channel, ChannelConfig
 from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
@@ -327,51 +328,30 @@ class Launcher:
         (100 process starts take long enough on a busy machine for the first ones' handshakes to time out)."""
         plan = self.plan
         env = tree.secret_env(dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out)), plan.secret)
-        overrides = {str(i): p for i, p in enumerate(plan.params) if p}
+        overrides = {i: dict(p) for i, p in enumerate(plan.params) if p}
         for k, group in enumerate(self._autopilot_groups()):
-            vehicles = ",".join(str(i) for i in group)
             name = f"autopilot-{k}" if k else "autopilot"
-            sup.start(
-                name,
-                [
-                    _python(),
-                    "-m",
-                    "harness.autopilot.sitl",
-                    "--address",
-                    address,
-                    "--vehicles",
-                    vehicles,
-                    "--api-port-base",
-                    str(plan.api_remote_base),
-                    "--api-local-port-base",
-                    str(self.api_port_base),
-                    "--gcs-port",
-                    str(self.gcs_port),
-                    "--run-dir",
-                    str(plan.out),
-                    "--params",
-                    json.dumps(overrides),
-                    "--firmware",
-                    ",".join(plan.firmware_of(i).value for i in range(plan.vehicles)),
-                    "--tcp-port-base",
-                    str(self.tcp_port_base),
-                    "--tcp-port-step",
-                    str(plan.tcp_port_step),
-                    "--gcs-extra-ports",
-                    ",".join(str(p) for p in plan.gcs_extra_ports),
-                    "--physics",
-                    str(plan.out / PHYSICS_FILE),
-                    "--name",
-                    name,
-                    *(["--tcp-sim-clients"] if self._tcp_sim_clients else []),
-                    *(  # the key's file, never the key: argv is public (ps)
-                        ["--signing-key-file", str(plan.signing_key_file.resolve()), "--trust-run", str(os.getpid())]
-                        if plan.signing_key_file is not None
-                        else []
-                    ),
-                ],
-                env=env,
-            )
+            config = AutopilotProcessConfig(
+                address=address,
+                vehicles=tuple(group),
+                api_port_base=plan.api_remote_base,
+                api_local_port_base=self.api_port_base,
+                gcs_port=self.gcs_port,
+                run_dir=str(plan.out),
+                params=overrides,
+                signing_key_file=str(plan.signing_key_file.resolve()) if plan.signing_key_file is not None else None,
+                trust_run=os.getpid() if plan.signing_key_file is not None else 0,
+                firmware=tuple(plan.firmware_of(i) for i in range(plan.vehicles)),
+                tcp_port_base=self.tcp_port_base,
+                tcp_port_step=plan.tcp_port_step,
+                gcs_extra_ports=tuple(plan.gcs_extra_ports),
+                tcp_sim_clients=self._tcp_sim_clients,
+                physics=str(plan.out / PHYSICS_FILE),
+                name=name,
+            )  # the key's file, never the key
+            config_file = plan.out / f"{name}.json"
+            config_file.write_bytes(config.to_json())
+            sup.start(name, [_python(), "-m", "harness.autopilot.sitl", "--config", str(config_file)], env=env)
         if plan.network != NetworkKind.NONE:
             sup.start(
                 "network",
@@ -489,7 +469,7 @@ class Launcher:
                     row.status[e.vehicle] = e.status
             done = list(ledger.complete())
             if done:
-                self._record(done, record_every, summaries, world)
+                self.record_rows(done, record_every, summaries, world)
             if phase:
                 ledger.check_through(tick)
             frames = phys.step([motors[v] for v in own])
@@ -504,7 +484,7 @@ class Launcher:
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
 
     @staticmethod
-    def _record(rows: list[Row], record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:
+    def record_rows(rows: list[Row], record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:
         """Ticks every vehicle's truth is known at, oldest first: recorded (every ``record_every``-th), and the
         summaries (the highest altitude and a crash at every tick; the rest as of the last one)."""
         for row in rows:

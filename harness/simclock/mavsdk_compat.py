@@ -22,7 +22,6 @@ import importlib.machinery
 import logging
 import os
 import re
-import socket
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -30,6 +29,7 @@ from types import ModuleType
 from typing import Any
 
 from harness.core.endpoints import VehicleEndpoints, mavsdk_url
+from harness.core.freeport import free_tcp_port
 
 log = logging.getLogger(__name__)
 
@@ -55,12 +55,6 @@ def detect_api(source: str) -> MavsdkApi:
     if re.search(r"\bimport\s+mavsdk_grpc\b|from\s+mavsdk_grpc\b", source):
         return MavsdkApi.GRPC_NAMED
     return MavsdkApi.GRPC
-
-
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class _AliasFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
@@ -109,7 +103,7 @@ def _patch_grpc_server(ep: VehicleEndpoints | None) -> None:
         self: Any, mavsdk_server_address: str | None = None, port: int | None = None, *a: Any, **kw: Any
     ) -> None:
         if port is None or (port == 50051 and mavsdk_server_address is None):
-            port = _free_tcp_port()
+            port = free_tcp_port()
         orig_init(self, mavsdk_server_address, port, *a, **kw)
 
     async def connect(self: Any, system_address: str | None = None) -> Any:

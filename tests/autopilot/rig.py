@@ -78,12 +78,12 @@ class FlightRig:
                 return t
             self.run(step_s)
             t += step_s
-        raise AssertionError(f"condition not met within {limit_s} s: {self.ap.state()}")
+        raise AssertionError(f"condition not met within {limit_s} s: {self.ap.telemetry.state()}")
 
     def up(self, alt_m: float) -> None:
-        assert self.ap.arm().ok, self.ap.arming_check()
-        assert self.ap.takeoff(alt_m).ok
-        self.run_until(lambda: self.ap.state().mode == FlightMode.HOLD, 30.0)
+        assert self.ap.action.arm().ok, self.ap.telemetry.arming_check()
+        assert self.ap.action.takeoff(alt_m).ok
+        self.run_until(lambda: self.ap.telemetry.state().mode == FlightMode.HOLD, 30.0)
 
     def geo(self, n: float, e: float) -> tuple[int, int]:
         """Lat/lon (1e7 ints) of a point n, e metres from the start position."""

@@ -37,9 +37,9 @@ def _hover_band(rig: FlightRig, seconds: float) -> tuple[float, float, float]:
 
 def test_takeoff_and_hover_still_air(fdm: PlantFactory) -> None:
     rig = FlightRig(fdm())
-    assert rig.ap.arm().ok, rig.ap.arming_check()
+    assert rig.ap.action.arm().ok, rig.ap.telemetry.arming_check()
     t0 = rig.frame.t_ns * 1e-9
-    assert rig.ap.takeoff(10.0).ok
+    assert rig.ap.action.takeoff(10.0).ok
     rig.run(15.0)
     alt = [(t - t0, -p[2] + rig.start[2]) for t, p, _ in rig.log if t >= t0]
     overshoot = max(a for _, a in alt) - 10.0
@@ -95,15 +95,15 @@ def test_square_mission(fdm: PlantFactory) -> None:
     items = [item(0, 22), item(1, 178, param2=5.0)]
     items += [item(2 + i, 16, n, e) for i, (n, e) in enumerate(corners[1:])]
     items.append(item(len(items), 21, 0.0, 0.0, 0.0))
-    assert ap.upload_mission(items).ok
-    assert ap.arm().ok and ap.start_mission().ok
+    assert ap.mission.upload(items).ok
+    assert ap.action.arm().ok and ap.mission.start().ok
     reached: list[tuple[int, float]] = []
 
     def collect() -> None:
-        reached.extend((r.seq, r.t_ns * 1e-9) for r in ap.pop_mission_reached())
+        reached.extend((r.seq, r.t_ns * 1e-9) for r in ap.telemetry.pop_mission_reached())
 
     rig.on_tick = collect
-    rig.run_until(lambda: not ap.state().armed, 200.0)
+    rig.run_until(lambda: not ap.telemetry.state().armed, 200.0)
     collect()
     seqs = [s for s, _ in reached]
     assert seqs == list(range(len(items)))
@@ -120,17 +120,17 @@ def test_square_mission(fdm: PlantFactory) -> None:
     land = math.hypot(rig.pos[0], rig.pos[1])
     figure("square_mission", cross_track_rms_m=rms, cross_track_max_m=max(errs), land_error_m=land)
     assert rms < 1.0 and land < 1.0
-    assert not ap.state().armed and ap.state().landed_state == LandedState.ON_GROUND
+    assert not ap.telemetry.state().armed and ap.telemetry.state().landed_state == LandedState.ON_GROUND
 
 
 def test_return_from_100m(fdm: PlantFactory) -> None:
     rig = FlightRig(fdm())
     rig.up(10.0)
     lat, lon = rig.geo(80.0, 60.0)
-    assert rig.ap.reposition(lat * 1e-7, lon * 1e-7, None).ok
+    assert rig.ap.action.reposition(lat * 1e-7, lon * 1e-7, None).ok
     rig.run_until(lambda: math.hypot(rig.pos[0] - 80.0, rig.pos[1] - 60.0) < 1.0, 60.0)
-    assert rig.ap.return_to_launch().ok
-    rig.run_until(lambda: not rig.ap.state().armed, 150.0)
+    assert rig.ap.action.return_to_launch().ok
+    rig.run_until(lambda: not rig.ap.telemetry.state().armed, 150.0)
     err = math.hypot(rig.pos[0], rig.pos[1])
     figure("return_100m", land_error_m=err)
     assert err < 1.5
@@ -141,10 +141,10 @@ def test_offboard_velocity_step(fdm: PlantFactory) -> None:
     rig.up(10.0)
     ap = rig.ap
     sp = OffboardSetpoint(velocity_m_s=(0.0, 0.0, 0.0), yaw_rad=0.0)
-    ap.set_offboard_setpoint(sp)
-    assert ap.set_mode(FlightMode.OFFBOARD).ok
+    ap.offboard.set_setpoint(sp)
+    assert ap.action.set_mode(FlightMode.OFFBOARD).ok
     current = [sp]
-    rig.on_tick = lambda: ap.set_offboard_setpoint(current[0])  # streamed, as MAVSDK does
+    rig.on_tick = lambda: ap.offboard.set_setpoint(current[0])  # streamed, as MAVSDK does
     rig.run(3.0)
     current[0] = OffboardSetpoint(velocity_m_s=(3.0, 0.0, 0.0), yaw_rad=0.0)
     n0 = len(rig.log)
@@ -162,9 +162,9 @@ def test_failsafe_low_battery_returns(fdm: PlantFactory) -> None:
     rig = FlightRig(fdm(), SIM_BAT_DRAIN=150.0)
     rig.up(5.0)
     lat, lon = rig.geo(20.0, 0.0)
-    rig.ap.reposition(lat * 1e-7, lon * 1e-7, None)
-    rig.run_until(lambda: rig.ap.state().mode == FlightMode.RTL, 120.0)
-    s = rig.ap.state()
+    rig.ap.action.reposition(lat * 1e-7, lon * 1e-7, None)
+    rig.run_until(lambda: rig.ap.telemetry.state().mode == FlightMode.RTL, 120.0)
+    s = rig.ap.telemetry.state()
     figure("failsafe_low_battery", remaining=s.battery.remaining, voltage_v=s.battery.voltage_v)
     assert s.failsafe == "battery" and s.battery.remaining < 0.15
 
@@ -174,33 +174,33 @@ def test_failsafe_setpoint_loss_holds_within_1s(fdm: PlantFactory) -> None:
     rig.up(5.0)
     ap = rig.ap
     sp = OffboardSetpoint(velocity_m_s=(1.0, 0.0, 0.0))
-    ap.set_offboard_setpoint(sp)
-    assert ap.set_mode(FlightMode.OFFBOARD).ok
-    rig.on_tick = lambda: ap.set_offboard_setpoint(sp)
+    ap.offboard.set_setpoint(sp)
+    assert ap.action.set_mode(FlightMode.OFFBOARD).ok
+    rig.on_tick = lambda: ap.offboard.set_setpoint(sp)
     rig.run(3.0)
     rig.on_tick = None
     lost = rig.clock.now_ns()
-    rig.run_until(lambda: ap.state().mode == FlightMode.HOLD, 2.0, 0.01)
+    rig.run_until(lambda: ap.telemetry.state().mode == FlightMode.HOLD, 2.0, 0.01)
     delay = (rig.clock.now_ns() - lost) * 1e-9
     figure("failsafe_setpoint_loss", hold_after_s=delay)
-    assert delay <= 1.0 and ap.state().failsafe == "offboard_loss"
+    assert delay <= 1.0 and ap.telemetry.state().failsafe == "offboard_loss"
 
 
 def test_failsafe_geofence_returns(fdm: PlantFactory) -> None:
     rig = FlightRig(fdm(), GF_MAX_HOR_DIST=30.0)
     rig.up(5.0)
     lat, lon = rig.geo(60.0, 0.0)
-    assert rig.ap.reposition(lat * 1e-7, lon * 1e-7, None).ok
-    rig.run_until(lambda: rig.ap.state().mode == FlightMode.RTL, 40.0)
+    assert rig.ap.action.reposition(lat * 1e-7, lon * 1e-7, None).ok
+    rig.run_until(lambda: rig.ap.telemetry.state().mode == FlightMode.RTL, 40.0)
     figure("failsafe_geofence", breach_at_m=rig.pos[0])
-    assert rig.ap.state().failsafe == "geofence" and 29.0 < rig.pos[0] < 36.0
-    rig.run_until(lambda: not rig.ap.state().armed, 120.0)
+    assert rig.ap.telemetry.state().failsafe == "geofence" and 29.0 < rig.pos[0] < 36.0
+    rig.run_until(lambda: not rig.ap.telemetry.state().armed, 120.0)
     assert math.hypot(rig.pos[0], rig.pos[1]) < 1.5
 
 
 def test_arming_refused_without_gps_fix(fdm_no_gps: PlantFactory) -> None:
     rig = FlightRig(fdm_no_gps())
-    r = rig.ap.arm()
+    r = rig.ap.action.arm()
     figure("arming_without_gps", refused=float(r.result == Result.DENIED))
     assert r.result == Result.DENIED and "GPS" in r.reason
-    assert not rig.ap.state().armed
+    assert not rig.ap.telemetry.state().armed

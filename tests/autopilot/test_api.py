@@ -73,10 +73,10 @@ def test_mission_validation() -> None:
     assert MissionItem(0, 6, 16, x=47.5, y=8.5).lat_deg == 47.5
 
 
-def test_autopilot_satisfies_the_api_protocol() -> None:
-    from harness.autopilot.api import AutopilotApi
+def test_autopilot_satisfies_the_system_protocol() -> None:
     from harness.autopilot.autopilot import Autopilot
+    from harness.autopilot.services import System
 
-    ap: AutopilotApi = Autopilot()  # checked structurally by mypy
-    s = ap.state()
+    ap: System = Autopilot()  # checked structurally by mypy
+    s = ap.telemetry.state()
     assert not s.armed and s.mode == FlightMode.HOLD and s.t_ns == 0

@@ -50,8 +50,8 @@ def test_host_flies_two_vehicles_through_the_channel() -> None:
             for k in range(250 * 12):
                 if k == 500:  # 2 s: both ready; command from outside the lockstep loop, as MAVLink would
                     for v, ap in aps.items():
-                        assert ap.arm().ok, ap.arming_check()
-                        assert ap.takeoff(3.0 + 2.0 * v).ok
+                        assert ap.action.arm().ok, ap.telemetry.arming_check()
+                        assert ap.action.takeoff(3.0 + 2.0 * v).ok
                 frames = [sims[v].step(motors[v]) if k else sims[v].frame() for v in (0, 1)]
                 phys.send_many(
                     [
@@ -73,7 +73,7 @@ def test_host_flies_two_vehicles_through_the_channel() -> None:
         assert not host.is_alive()
         assert attached == [0, 1] and all(h.closed for h in handles)
         assert abs(sims[0].pos[2] + 3.0) < 0.3 and abs(sims[1].pos[2] + 5.0) < 0.3
-        assert aps[0].state().mode == FlightMode.HOLD
+        assert aps[0].telemetry.state().mode == FlightMode.HOLD
         armed, landed, main, sub = p.unpack_status(status[1])
         assert armed and landed == 2 and FlightMode.from_px4(main, sub) == FlightMode.HOLD
     finally:

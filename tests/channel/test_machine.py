@@ -23,7 +23,7 @@ def test_one_tick_runs_the_paper_order_and_ends_after_every_answer() -> None:
     net = rig.join(T1, "net")
     rig.begin_tick()
     assert sorted(ap.owes_ac) == [0, 1] and m0.owes0 == 0 and net.owes1 is None
-    assert rig.machine.tick_state is TickState.STEPPING and rig.machine.phase is PhaseState.ZERO
+    assert rig.machine.state.tick is TickState.STEPPING and rig.machine.state.phase is PhaseState.ZERO
     rig.answer_ac(ap)
     assert net.owes1 is None  # phase 1 waits for phase 0
     rig.answer0(m0, packets=2)
@@ -32,7 +32,7 @@ def test_one_tick_runs_the_paper_order_and_ends_after_every_answer() -> None:
     assert bt1.positions[1].ned_m == (1.0, 0.0, -1.0) and bt1.period_ns == TICK_NS
     assert rig.ticks_ended() == 0  # strict order: physics waits for END-TICK-1
     rig.answer1(net)
-    assert rig.ticks_ended() == 1 and rig.machine.tick_state is TickState.IDLE
+    assert rig.ticks_ended() == 1 and rig.machine.state.tick is TickState.IDLE
     assert rig.phases == [("bt0", 0), ("bt1", 0)]
 
 
@@ -47,7 +47,7 @@ def test_overlapping_phase1_lets_physics_go_on_but_holds_the_next_phase0() -> No
     assert net.owes1 == 0 and rig.ticks_ended() == 1  # physics already has its END-TICK-AC
     rig.begin_tick()
     rig.answer_ac(ap)
-    assert m0.owes0 is None and rig.machine.phase is PhaseState.PENDING  # phase 1 of tick 0 still runs
+    assert m0.owes0 is None and rig.machine.state.phase is PhaseState.PENDING  # phase 1 of tick 0 still runs
     rig.answer1(net)
     assert m0.owes0 == TICK_NS
     rig.answer0(m0)
@@ -60,7 +60,7 @@ def test_in_process_autopilots_step_before_phase0_and_a_quiet_tick_is_only_their
     assert local.link is PeerLink.IN_PROCESS and rig.machine.subscribers() == []
     m0 = rig.join(T0, "m0", vehicle=0)
     rig.begin_tick()  # tick 0 runs the phases: the in-process autopilots step first, then BEGIN-TICK-0
-    assert m0.owes0 == 0 and rig.machine.tick_state is TickState.ANSWERED
+    assert m0.owes0 == 0 and rig.machine.state.tick is TickState.ANSWERED
     rig.answer0(m0)
     assert rig.ticks_ended() == 1
     bta = [p.BeginTickAC(TICK_NS, 1, v, 2, (0.0, 0.0, 0.0)) for v in (1, 0)]
@@ -152,7 +152,7 @@ def test_a_vehicle_without_autopilot_waits_for_one_then_fails_after_the_join_lim
     rig = Rig(vehicles=2)
     rig.join(AP, "ap", vehicles=(0,))
     rig.begin_tick()
-    assert rig.machine.tick_state is TickState.AWAITING_HOLDERS and rig.watchdog.watching(JOIN)
+    assert rig.machine.state.tick is TickState.AWAITING_HOLDERS and rig.watchdog.watching(JOIN)
     second = rig.join(AP, "ap-1", vehicles=(1,))  # admitted at once: the tick waits for it
     assert second.owes_ac and not rig.watchdog.watching(JOIN)
     rig2 = Rig(vehicles=2)
@@ -213,7 +213,7 @@ def test_a_child_obeys_its_parent_and_answers_for_its_subtree() -> None:
     assert [type(msg) for pid, msg in _sent(m) if pid == up.pid] == [p.EndTick0, p.EndTickAC]
     m.from_upstream(p.BeginTick1(0, 0, TICK_NS, (), ()))
     assert [type(msg) for pid, msg in _sent(m) if pid == up.pid] == [p.EndTick1]
-    assert m.tick_state is TickState.IDLE and m.ticks_done == 1
+    assert m.state.tick is TickState.IDLE and m.ticks_done == 1
 
 
 def _sent(m: TickMachine) -> list[tuple[int, p.Message]]:

@@ -110,7 +110,7 @@ class TickMachineRules(RuleBasedStateMachine):
 
     # -- the tick ---------------------------------------------------------------------------------------------------
 
-    @precondition(lambda self: self._running() and self.rig.machine.tick_state is TickState.IDLE)
+    @precondition(lambda self: self._running() and self.rig.machine.state.tick is TickState.IDLE)
     @rule()
     def physics_begins_a_tick(self) -> None:
         self.rig.begin_tick()
@@ -186,8 +186,8 @@ class TickMachineRules(RuleBasedStateMachine):
         if rig.failure is not None or not hasattr(rig, "machine"):
             return
         owing = rig.owing_ac() or rig.owing0() or rig.owing1()
-        if not owing and rig.machine.tick_state is not TickState.AWAITING_HOLDERS:
-            assert rig.machine.tick_state is TickState.IDLE, f"tick {rig.tick} hangs in {rig.machine.tick_state}"
+        if not owing and rig.machine.state.tick is not TickState.AWAITING_HOLDERS:
+            assert rig.machine.state.tick is TickState.IDLE, f"tick {rig.tick} hangs in {rig.machine.state.tick}"
             assert rig.ticks_ended() == rig.tick + 1
 
     @invariant()

@@ -66,7 +66,7 @@ def test_kill_9_leaves_a_readable_recording_and_says_the_run_did_not_finish(tmp_
 
     # world.rrd (when Rerun is installed) streams: its reader gets the track up to about the same time
     if (out / "world.rrd").is_file():
-        from tests.view.test_rrd import read_rrd
+        from tests.record.test_rrd import read_rrd
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "RRD file has no footer": a killed run's file, read as a stream

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -21,6 +20,7 @@ import pytest
 
 from harness.autopilot.mavlink.ardupilot.params import CopterParams
 from harness.autopilot.params import Params
+from tests.helpers import free_tcp_port
 
 from .flights import start_sitl
 from .test_mavproxy import Console
@@ -29,12 +29,6 @@ pytestmark = pytest.mark.sim
 
 ORIGIN = (47.397742, 8.545594, 488.0)
 """``harness sitl``'s default world origin: vehicle 0 starts there."""
-
-
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _mission_file(path: Path) -> None:
@@ -56,7 +50,7 @@ def _mission_file(path: Path) -> None:
 def test_mavproxy_flies_an_ardupilot_vehicle_with_its_own_commands(tmp_path: Path) -> None:
     mavproxy = shutil.which("mavproxy.py", path=str(Path(sys.executable).parent))
     assert mavproxy, "MAVProxy is part of the test setup (dev.py installs it); mavproxy.py not found"
-    tcp = _free_tcp_port()
+    tcp = free_tcp_port()
     extra = ["--firmware", "ardupilot", "--tcp-port-base", str(tcp)]
     sitl, _gcs_port = start_sitl(2, tmp_path / "sitl", stdout=subprocess.DEVNULL, extra=extra)
     proxy: subprocess.Popen[str] | None = None

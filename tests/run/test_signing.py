@@ -16,6 +16,7 @@ from pymavlink import mavutil
 
 from harness.autopilot.mavlink.runlocal import RunLocalPeers, descendants
 from harness.record.status import read_summary
+from tests.helpers import free_tcp_port
 
 from .flights import start_sitl_ports
 from .test_run import ROOT, harness
@@ -32,12 +33,6 @@ def _key(tmp_path: Path) -> tuple[Path, bytes]:
     path = tmp_path / "signing.key"
     path.write_text(key.hex() + "\n")
     return path, key
-
-
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _arm(conn: mavutil.mavfile) -> None:
@@ -74,7 +69,7 @@ class Observer:
 @pytest.mark.parametrize("firmware", ["px4", "ardupilot"])
 def test_unsigned_arm_from_another_process_is_ignored_and_a_signed_one_arms(tmp_path: Path, firmware: str) -> None:
     key_file, key = _key(tmp_path)
-    tcp = _free_tcp_port()
+    tcp = free_tcp_port()
     extra = ["--signing-key-file", str(key_file), "--firmware", firmware, "--tcp-port-base", str(tcp)]
     proc, gcs_port, api_port = start_sitl_ports(1, tmp_path / "sitl", subprocess.DEVNULL, extra)
     try:

@@ -174,7 +174,7 @@ def test_losing_a_worker_ends_the_run_naming_it(tmp_path: Path) -> None:
     )
     try:
         wait_for_sim_time(proc, out, 5.0, 180)
-        worker = [pid for pid in pids_with_run_dir(out) if b"--name\0autopilot-1\0" in _cmdline(pid)]
+        worker = [pid for pid in pids_with_run_dir(out) if b"autopilot-1.json" in _cmdline(pid)]
         assert len(worker) == 1, "one process is autopilot-1"
         os.kill(worker[0], signal.SIGKILL)
         _, err = proc.communicate(timeout=60)

@@ -77,13 +77,3 @@ def procs(tmp_path: Path) -> Iterator[Procs]:
         yield p
     finally:
         p.close()
-
-
-def wait_until(cond: Any, timeout_s: float = 20.0, what: str = "condition") -> None:
-    import time
-
-    end = time.monotonic() + timeout_s
-    while not cond():
-        if time.monotonic() > end:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.02)

@@ -15,8 +15,9 @@ from harness.channel.drivers import run_fake_physics
 from harness.core.errors import ScenarioError, SimulationError
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
+from tests.helpers import wait_until
 
-from .conftest import Procs, load, wait_until
+from .conftest import Procs, load
 
 
 def physics_in_thread(address: str, ticks: int, **kw: object) -> tuple[threading.Thread, dict[str, object]]:

@@ -9,8 +9,9 @@ import pytest
 
 from harness.channel import Channel, ChannelConfig
 from harness.channel.drivers import fake_position, run_fake_physics
+from tests.helpers import wait_until
 
-from .conftest import Procs, load, wait_until
+from .conftest import Procs, load
 
 TICKS = 300
 

@@ -16,8 +16,9 @@ from harness.channel import Channel, ChannelConfig
 from harness.channel.drivers import run_fake_physics
 from harness.simclock import patch
 from harness.simclock.runtime import SimRuntime
+from tests.helpers import wait_until
 
-from .conftest import Procs, wait_until
+from .conftest import Procs
 
 TICK_HZ = 250.0
 PHASE_EVERY = 5

@@ -19,6 +19,7 @@ import pytest
 from harness.pytest_plugin import SweepRecord
 from harness.run.result import RunStatus
 from harness.sweep.results import read_results
+from tests.helpers import wait_until
 
 pytestmark = pytest.mark.sim
 WAIT_FOR_FILE = Path(__file__).resolve().parent / "scripts" / "wait_for_file.py"
@@ -311,7 +312,4 @@ def test_a_lost_scheduler_ends_the_sweep_in_one_line_and_stops_the_runs(
         "harness: lost the connection to the Dask scheduler; 2 run(s) did not finish (their workers stopped "
         "them): re-run the same command to finish them"
     )
-    t0 = time.monotonic()
-    while pids_under(out) and time.monotonic() - t0 < 10:
-        time.sleep(0.1)
-    assert not pids_under(out)
+    wait_until(lambda: not pids_under(out), 10.0, "every process of the runs gone", poll_s=0.1)

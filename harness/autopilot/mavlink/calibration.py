@@ -34,11 +34,12 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from harness.autopilot.api import AutopilotApi, CommandResult, Severity, VehicleState
+from harness.autopilot.api import CommandResult, Severity, VehicleState
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.messages import Out
 from harness.autopilot.mavlink.service import CommandHandler, Service, outcome
 from harness.autopilot.params import SITL_ACCEL_ID, SITL_GYRO_ID, SITL_MAG_ID
+from harness.autopilot.services import System
 
 CMD_PREFLIGHT_CALIBRATION = 241
 G = 9.80665
@@ -94,7 +95,7 @@ def _mean(samples: list[tuple[float, float, float]]) -> tuple[float, float, floa
 
 
 class CalibrationService(Service):
-    def __init__(self, api: AutopilotApi) -> None:
+    def __init__(self, api: System) -> None:
         super().__init__()
         self.api = api
         self._run: _Run | None = None
@@ -117,7 +118,7 @@ class CalibrationService(Service):
         if isinstance(kind, str):
             bad = kind.endswith("finite")
             return outcome(CommandResult.denied(kind) if bad else CommandResult.unsupported(kind))
-        if self.api.state().armed:
+        if self.api.telemetry.state().armed:
             return outcome(CommandResult.denied("[cal] calibration denied: system armed"))
         if self._run is not None:
             return outcome(CommandResult.rejected("[cal] calibration denied: already running"))
@@ -166,8 +167,8 @@ class CalibrationService(Service):
                 ax, ay, az = _mean(run.samples)
                 roll = math.degrees(math.atan2(-ay, -az))
                 pitch = math.degrees(math.atan2(ax, math.hypot(ay, az)))
-                self.api.set_param("SENS_BOARD_X_OFF", round(roll, 4))
-                self.api.set_param("SENS_BOARD_Y_OFF", round(pitch, 4))
+                self.api.params.set("SENS_BOARD_X_OFF", round(roll, 4))
+                self.api.params.set("SENS_BOARD_Y_OFF", round(pitch, 4))
                 self._done(run)
         else:
             self._sides(run, state, elapsed)
@@ -221,12 +222,12 @@ class CalibrationService(Service):
     ) -> None:
         api = self.api
         for axis, off in zip("XYZ", offsets, strict=True):
-            api.set_param(f"CAL_{sensor}0_{axis}OFF", round(off, 6))
+            api.params.set(f"CAL_{sensor}0_{axis}OFF", round(off, 6))
         if scales is not None:
             for axis, sc in zip("XYZ", scales, strict=True):
-                api.set_param(f"CAL_{sensor}0_{axis}SCALE", sc)
-        api.set_param(f"CAL_{sensor}0_ID", device_id)
-        api.set_param(f"CAL_{sensor}0_PRIO", 50)
+                api.params.set(f"CAL_{sensor}0_{axis}SCALE", sc)
+        api.params.set(f"CAL_{sensor}0_ID", device_id)
+        api.params.set(f"CAL_{sensor}0_PRIO", 50)
 
     def _done(self, run: _Run) -> None:
         self._say(f"[cal] calibration done: {run.kind.value}")

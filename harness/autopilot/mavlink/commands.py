@@ -16,16 +16,9 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import (
-    AutopilotApi,
-    CommandResult,
-    FlightMode,
-    GeoPoint,
-    MavCmd,
-    MavFrame,
-    Result,
-)
+from harness.autopilot.api import CommandResult, FlightMode, GeoPoint, MavCmd, MavFrame, Result
 from harness.autopilot.mavlink.messages import INT32_MAX, MAVLinkMessage, is_set
+from harness.autopilot.services import System
 
 RequestMessage = Callable[[int], "MAVLinkMessage | str | None"]
 """msg id -> the message, None when unknown, or a str reason when known but not available now."""
@@ -86,21 +79,19 @@ class CommandService:
 
     def __init__(
         self,
-        api: AutopilotApi,
+        api: System,
         request_message: RequestMessage,
         set_interval: Callable[[int, float], bool],
-        inject_failure: Callable[[int, int, int], CommandResult] | None = None,
     ) -> None:
         self.api = api
         self.request_message = request_message
         self.set_interval = set_interval
-        self.inject_failure = inject_failure
         self._last: dict[tuple[object, ...], tuple[tuple[object, ...], int, CommandOutcome]] = {}
         self._handlers: dict[int, Callable[[CommandIn], CommandOutcome]] = {
             MavCmd.ARM_DISARM: self._arm,
             MavCmd.NAV_TAKEOFF: self._takeoff,
-            MavCmd.NAV_LAND: lambda c: self._mode_cmd(self.api.land()),
-            MavCmd.NAV_RETURN_TO_LAUNCH: lambda c: self._mode_cmd(self.api.return_to_launch()),
+            MavCmd.NAV_LAND: lambda c: self._mode_cmd(self.api.action.land()),
+            MavCmd.NAV_RETURN_TO_LAUNCH: lambda c: self._mode_cmd(self.api.action.return_to_launch()),
             MavCmd.DO_SET_MODE: self._do_set_mode,
             MavCmd.DO_REPOSITION: self._reposition,
             MavCmd.MISSION_START: self._mission_start,
@@ -108,6 +99,7 @@ class CommandService:
             MavCmd.DO_ORBIT: self._orbit,
             MavCmd.DO_SET_HOME: self._set_home,
             CMD_INJECT_FAILURE: self._inject_failure,
+            MavCmd.DO_GRIPPER: self._gripper,
             CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
             CMD_REQUEST_MESSAGE: self._request_message,
@@ -167,7 +159,7 @@ class CommandService:
             return f"frame {cmd.frame} not supported (use GLOBAL_INT or GLOBAL_RELATIVE_ALT_INT)"
         relative = cmd.frame in (MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_RELATIVE_ALT_INT)
         if alt is not None and relative and honour_relative_frame:
-            home = self.api.state().home
+            home = self.api.telemetry.state().home
             if home is None:
                 return "altitude relative to home given but there is no home position yet"
             alt += home.alt_amsl_m
@@ -178,28 +170,28 @@ class CommandService:
         p1, p2 = cmd.params[0], cmd.params[1]
         force = p2 == FORCE_MAGIC
         if p1 == 1.0:
-            return self._mode_cmd(self.api.arm(force))
+            return self._mode_cmd(self.api.action.arm(force))
         if p1 == 0.0:
-            return self._mode_cmd(self.api.disarm(force))
+            return self._mode_cmd(self.api.action.disarm(force))
         return CommandOutcome(CommandResult.denied(f"ARM_DISARM param1 must be 1 (arm) or 0 (disarm), got {p1}"))
 
     def _takeoff(self, cmd: CommandIn) -> CommandOutcome:
         alt_amsl = cmd.params[6]
         if not is_set(alt_amsl):
-            return self._mode_cmd(self.api.takeoff(None))
+            return self._mode_cmd(self.api.action.takeoff(None))
         if not math.isfinite(alt_amsl):
             return CommandOutcome(CommandResult.denied(f"Takeoff denied: altitude {alt_amsl} is not finite"))
-        home = self.api.state().home
+        home = self.api.telemetry.state().home
         if home is None:
             return CommandOutcome(
                 CommandResult.rejected("Takeoff rejected: an AMSL altitude needs a home position (arm first)")
             )
         rel = alt_amsl - home.alt_amsl_m
-        least = float(self.api.get_param("MIS_TAKEOFF_ALT"))
+        least = float(self.api.params.get("MIS_TAKEOFF_ALT"))
         if rel >= least:
-            return self._mode_cmd(self.api.takeoff(rel))
+            return self._mode_cmd(self.api.action.takeoff(rel))
         # below home + MIS_TAKEOFF_ALT (MAVProxy's `takeoff 10` sends 10 m AMSL): PX4's navigator raises it
-        r = self.api.takeoff(least)
+        r = self.api.action.takeoff(least)
         notice = f"Using minimum takeoff altitude: {least:.2f} m" if r.ok else ""
         return CommandOutcome(r, mode_or_arming_changed=r.ok, notice=notice)
 
@@ -216,7 +208,7 @@ class CommandService:
         mode = FlightMode.from_px4(int(main), int(sub))
         if mode is None:
             return CommandResult.denied(f"set mode: PX4 mode main {int(main)} sub {int(sub)} is not available")
-        return self.api.set_mode(mode)
+        return self.api.action.set_mode(mode)
 
     def _reposition(self, cmd: CommandIn) -> CommandOutcome:
         geo = self._geo(cmd)
@@ -225,9 +217,9 @@ class CommandService:
         speed, yaw = cmd.params[0], cmd.params[3]
         if is_set(yaw) and not math.isfinite(yaw):
             return CommandOutcome(CommandResult.denied(f"Reposition denied: yaw {yaw} is not finite"))
-        result = self.api.reposition(geo[0], geo[1], geo[2], yaw if is_set(yaw) else None)
+        result = self.api.action.reposition(geo[0], geo[1], geo[2], yaw if is_set(yaw) else None)
         if result.ok and math.isfinite(speed) and speed > 0:
-            self.api.change_speed(speed)
+            self.api.action.change_speed(speed)
         return self._mode_cmd(result)
 
     def _mission_start(self, cmd: CommandIn) -> CommandOutcome:
@@ -235,10 +227,10 @@ class CommandService:
         if is_set(first) and (not math.isfinite(first) or first < 0):
             return CommandOutcome(CommandResult.denied(f"Mission start denied: first item {first} is invalid"))
         if is_set(first) and first > 0:
-            r = self.api.set_current_item(int(first))
+            r = self.api.mission.set_current(int(first))
             if not r.ok:
                 return CommandOutcome(r)
-        return self._mode_cmd(self.api.start_mission())
+        return self._mode_cmd(self.api.mission.start())
 
     def _set_mission_current(self, cmd: CommandIn) -> CommandOutcome:
         """224: param1 the item (-1 = keep), param2 1 = reset the mission (start again from item 0)."""
@@ -249,7 +241,7 @@ class CommandService:
             seq = 0.0
         if seq == -1:
             return CommandOutcome(CommandResult.accepted())
-        return CommandOutcome(self.api.set_current_item(int(seq)))
+        return CommandOutcome(self.api.mission.set_current(int(seq)))
 
     def _change_speed(self, cmd: CommandIn) -> CommandOutcome:
         speed = cmd.params[1]
@@ -257,7 +249,7 @@ class CommandService:
             return CommandOutcome(CommandResult.accepted())
         if not math.isfinite(speed):
             return CommandOutcome(CommandResult.denied(f"Change speed denied: speed {speed} is not finite"))
-        return CommandOutcome(self.api.change_speed(speed))
+        return CommandOutcome(self.api.action.change_speed(speed))
 
     def _orbit(self, cmd: CommandIn) -> CommandOutcome:
         radius, velocity = cmd.params[0], cmd.params[1]
@@ -272,28 +264,43 @@ class CommandService:
         geo = self._geo(cmd, honour_relative_frame=False)
         if isinstance(geo, str):
             return CommandOutcome(CommandResult.denied(f"Orbit denied: {geo}"))
-        return self._mode_cmd(self.api.orbit(radius, velocity, geo[0], geo[1], geo[2]))
+        return self._mode_cmd(self.api.action.orbit(radius, velocity, geo[0], geo[1], geo[2]))
 
     def _set_home(self, cmd: CommandIn) -> CommandOutcome:
         if cmd.params[0] == 1.0:
-            return CommandOutcome(self.api.set_home(None))
+            return CommandOutcome(self.api.action.set_home(None))
         geo = self._geo(cmd)
         if isinstance(geo, str):
             return CommandOutcome(CommandResult.denied(f"Set home denied: {geo}"))
         lat, lon, alt = geo
         if lat is None or lon is None or alt is None:
             return CommandOutcome(CommandResult.denied("Set home denied: latitude, longitude and altitude required"))
-        return CommandOutcome(self.api.set_home(GeoPoint(lat, lon, alt)))
+        return CommandOutcome(self.api.action.set_home(GeoPoint(lat, lon, alt)))
+
+    def _gripper(self, cmd: CommandIn) -> CommandOutcome:
+        """DO_GRIPPER: param 1 the instance, param 2 GRIPPER_ACTION_RELEASE (0) or _GRAB (1)."""
+        gripper = self.api.gripper
+        if gripper is None:
+            return CommandOutcome(CommandResult.unsupported("this vehicle has no gripper"))
+        instance, action = cmd.params[0], cmd.params[1]
+        if not math.isfinite(instance) or instance != int(instance):
+            return CommandOutcome(CommandResult.denied(f"gripper instance {instance} is not a whole number"))
+        if action == mavlink2.GRIPPER_ACTION_GRAB:
+            return CommandOutcome(gripper.grab(int(instance)))
+        if action == mavlink2.GRIPPER_ACTION_RELEASE:
+            return CommandOutcome(gripper.release(int(instance)))
+        return CommandOutcome(CommandResult.denied(f"gripper action {action} is neither release (0) nor grab (1)"))
 
     def _inject_failure(self, cmd: CommandIn) -> CommandOutcome:
-        if int(self.api.get_param("SYS_FAILURE_EN")) != 1:
+        if int(self.api.params.get("SYS_FAILURE_EN")) != 1:
             return CommandOutcome(CommandResult.denied("Failure injection disabled: set SYS_FAILURE_EN to 1"))
         unit, kind, instance = cmd.params[0], cmd.params[1], cmd.params[2]
         if not all(math.isfinite(v) and v >= 0 for v in (unit, kind, instance)):
             return CommandOutcome(CommandResult.denied("Failure injection denied: invalid unit/type/instance"))
-        if self.inject_failure is None:
+        failure = self.api.failure
+        if failure is None:
             return CommandOutcome(CommandResult.unsupported("failure injection is not implemented by this autopilot"))
-        return CommandOutcome(self.inject_failure(int(unit), int(kind), int(instance)))
+        return CommandOutcome(failure.inject(int(unit), int(kind), int(instance)))
 
     def _set_message_interval(self, cmd: CommandIn) -> CommandOutcome:
         msg_id, interval_us = cmd.params[0], cmd.params[1]

@@ -10,14 +10,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from harness.autopilot.api import AutopilotApi, CommandResult, VehicleState
+from harness.autopilot.api import CommandResult, VehicleState
+from harness.autopilot.services import System
 
 DEFAULT_LOSS_S = 10.0
 
 
 @dataclass(slots=True)
 class DataLinkMonitor:
-    api: AutopilotApi
+    api: System
     last_gcs_ns: int | None = None
     triggered: bool = False
 
@@ -27,7 +28,7 @@ class DataLinkMonitor:
 
     def _param(self, name: str, default: float) -> float:
         try:
-            return float(self.api.get_param(name))
+            return float(self.api.params.get(name))
         except KeyError:
             return default
 
@@ -45,11 +46,11 @@ class DataLinkMonitor:
         self.triggered = True
         result: CommandResult
         if action == 1:
-            result, what = self.api.hold(), "holding"
+            result, what = self.api.action.hold(), "holding"
         elif action == 2:
-            result, what = self.api.return_to_launch(), "returning"
+            result, what = self.api.action.return_to_launch(), "returning"
         else:
-            result, what = self.api.land(), "landing"
+            result, what = self.api.action.land(), "landing"
         if not result.ok:
             return f"Data link lost for {silent_s:.0f} s: {what} refused ({result.reason})"
         return f"Data link lost for {silent_s:.0f} s: {what}"

@@ -8,11 +8,13 @@ from typing import Protocol
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, Severity, VehicleState
+from harness.autopilot.api import Severity, VehicleState
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.heartbeat import HeartbeatSchedule
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.telemetry import Builder, StreamScheduler
+from harness.autopilot.params import Params
+from harness.autopilot.services import System
 
 
 class DialectHost(Protocol):
@@ -31,11 +33,13 @@ class DialectHost(Protocol):
 
 
 class Dialect(Protocol):
-    api: AutopilotApi
+    api: System
     mission_float_form: bool
     param_bytewise: bool
     builders: Mapping[int, Builder]
     stream_defaults: Mapping[int, int]
+    own_params: Params | None
+    """The dialect's own parameter table, stored per vehicle beside the core's (ArduCopter's names), or None."""
 
     def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None: ...
     def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage: ...

@@ -42,11 +42,10 @@ from typing import BinaryIO
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.param_store import ParamStore, store_path
 from harness.autopilot.mavlink.service import Service
-from harness.autopilot.params import Params
+from harness.autopilot.services import System
 
 log = logging.getLogger(__name__)
 
@@ -99,17 +98,16 @@ def vehicle_tree(run_dir: Path, vehicle: int, ulog: Path | None, start_unix_s: i
     return root
 
 
-def _tree_of(api: AutopilotApi, vehicle: int) -> Path | None:
-    """The tree of an ``Autopilot`` whose run writes a ULog (its directory is the run directory)."""
-    flight_log = getattr(api, "flight_log", None)
-    if flight_log is None:
+def _tree_of(api: System, vehicle: int) -> Path | None:
+    """The tree of a vehicle whose run writes a ULog (its directory is the run directory)."""
+    logs = api.log_files.files() if api.log_files is not None else []
+    if not logs:
         return None
-    path: Path = flight_log.path
-    params = getattr(api, "params", None)
+    path, _size, start_unix_s = logs[0]
     store = ParamStore(store_path(path.parent, vehicle))
-    if isinstance(params, Params) and not store.path.exists():
-        store.save(params)  # the file /parameters.json shows: saved values only (none changed yet)
-    return vehicle_tree(path.parent, vehicle, path, flight_log.start_unix_us // 1_000_000)
+    if not store.path.exists():
+        store.save(api.params)  # the file /parameters.json shows: saved values only (none changed yet)
+    return vehicle_tree(path.parent, vehicle, path, start_unix_s)
 
 
 @dataclass(slots=True)
@@ -138,7 +136,7 @@ def _os_error(e: OSError) -> FtpError:
 class FtpService(Service):
     message_ids = frozenset({mavlink2.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL})
 
-    def __init__(self, api: AutopilotApi, vehicle: int, tree: Callable[[], Path | None] | None = None) -> None:
+    def __init__(self, api: System, vehicle: int, tree: Callable[[], Path | None] | None = None) -> None:
         super().__init__()
         self.api = api
         self._tree = tree if tree is not None else (lambda: _tree_of(api, vehicle))
@@ -331,10 +329,10 @@ class FtpService(Service):
 
     def _log_size(self, real: Path) -> int | None:
         """A flight log being written: flushed, and its size up to the last whole message."""
-        files = getattr(self.api, "log_files", None)
+        files = self.api.log_files
         if files is None:
             return None
-        for path, size, _t in files():
+        for path, size, _t in files.files():
             if Path(os.path.realpath(path)) == real:
                 return int(size)
         return None

@@ -30,11 +30,12 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, CommandResult, VehicleState
+from harness.autopilot.api import CommandResult, VehicleState
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.service import CommandHandler, Service, outcome
 from harness.autopilot.mavlink.telemetry import Builder
+from harness.autopilot.services import System
 
 _M = mavlink2
 DEVICE_ID = 1
@@ -115,7 +116,7 @@ class GimbalService(Service):
     }
     """Started when a client first uses the gimbal (see the module's docstring)."""
 
-    def __init__(self, api: AutopilotApi, sysid: int) -> None:
+    def __init__(self, api: System, sysid: int) -> None:
         super().__init__()
         self.api = api
         self.sysid = sysid
@@ -238,14 +239,14 @@ class GimbalService(Service):
         return self.primary == (0, 0) or (sysid, compid) in (self.primary, self.secondary)
 
     def _set_angles(self, pitch: float, yaw: float, flags: int) -> None:
-        self._move(self.api.state())  # up to now under the previous setpoint
+        self._move(self.api.telemetry.state())  # up to now under the previous setpoint
         g = self.g
         g.roi = None
         g.target_pitch_deg, g.target_yaw_deg = pitch, yaw
         g.yaw_lock = bool(flags & _M.GIMBAL_MANAGER_FLAGS_YAW_LOCK)
 
     def _set_rates(self, pitch_rate: float, yaw_rate: float, flags: int) -> None:
-        self._move(self.api.state())
+        self._move(self.api.telemetry.state())
         g = self.g
         g.roi = None
         g.target_pitch_deg = g.target_yaw_deg = None
@@ -320,11 +321,11 @@ class GimbalService(Service):
         self.primary = pick(p[0], p[1], self.primary)
         self.secondary = pick(p[2], p[3], self.secondary)
         assert self.mav is not None
-        status = self._manager_status(self.mav, self.api.state(), self._t_ms())
+        status = self._manager_status(self.mav, self.api.telemetry.state(), self._t_ms())
         return outcome(CommandResult.accepted(), [status])
 
     def _t_ms(self) -> int:
-        return (max(self.api.state().t_ns, 0) // 1_000_000) & 0xFFFFFFFF
+        return (max(self.api.telemetry.state().t_ns, 0) // 1_000_000) & 0xFFFFFFFF
 
     def _cmd_roi(self, c: CommandIn) -> CommandOutcome:
         self.in_use()

@@ -8,7 +8,7 @@ and downloads them (MAVSDK ``log_files``, QGroundControl's log download).
 - LOG_REQUEST_END: accepted (nothing is held open between requests).
 - LOG_ERASE: PX4 erases every log; here the only log is the one being written, which is kept.
 
-The logs come from the autopilot's optional ``log_files()`` hook (``Autopilot.log_files``); the size of
+The logs come from the autopilot's optional ``log_files`` service (``system.log_files.files()``); the size of
 each is taken at LOG_REQUEST_LIST (the log keeps growing while it is downloaded, and always ends on a
 ULog message boundary at the size announced).
 """
@@ -19,8 +19,8 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
+from harness.autopilot.services import System
 
 LOG_IDS = frozenset(
     {
@@ -39,14 +39,14 @@ MAX_PER_REQUEST = 1024
 class LogService:
     """Log listing and download for one vehicle. Called from the server thread only."""
 
-    def __init__(self, api: AutopilotApi, mav: mavlink2.MAVLink) -> None:
+    def __init__(self, api: System, mav: mavlink2.MAVLink) -> None:
         self.api = api
         self.mav = mav
         self._entries: list[tuple[Path, int, int]] = []
 
     def _list(self) -> list[tuple[Path, int, int]]:
-        files = getattr(self.api, "log_files", None)
-        self._entries = list(files()) if files is not None else []
+        logs = self.api.log_files
+        self._entries = logs.files() if logs is not None else []
         return self._entries
 
     def handle(self, m: MAVLinkMessage, origin: Origin) -> list[Out]:

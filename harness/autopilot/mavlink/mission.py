@@ -17,15 +17,9 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import (
-    SKIPPED_MISSION_COMMANDS,
-    AutopilotApi,
-    CommandResult,
-    MissionItem,
-    MissionKind,
-    Result,
-)
+from harness.autopilot.api import SKIPPED_MISSION_COMMANDS, CommandResult, MissionItem, MissionKind, Result
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, clamp_int
+from harness.autopilot.services import System
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +109,7 @@ class MissionService:
 
     def __init__(
         self,
-        api: AutopilotApi,
+        api: System,
         mav: mavlink2.MAVLink,
         retry_ns: int = 1_500_000_000,
         max_retries: int = 5,
@@ -164,7 +158,7 @@ class MissionService:
         if mid == mavlink2.MAVLINK_MSG_ID_MISSION_CLEAR_ALL:
             return self._clear(m, origin)
         if mid == mavlink2.MAVLINK_MSG_ID_MISSION_SET_CURRENT:
-            r = self.api.set_current_item(m.seq)
+            r = self.api.mission.set_current(m.seq)
             if not r.ok:
                 self.refusals.append(r)
             return []
@@ -210,7 +204,7 @@ class MissionService:
 
     def _finish(self, origin: Origin, kind: int, items: list[MissionItem]) -> Out:
         result = (
-            self.api.upload_mission(items, MissionKind(kind)) if items else self.api.clear_mission(MissionKind(kind))
+            self.api.mission.upload(items, MissionKind(kind)) if items else self.api.mission.clear(MissionKind(kind))
         )
         if result.ok:
             return self._ack(origin, mavlink2.MAV_MISSION_ACCEPTED, kind)
@@ -221,7 +215,7 @@ class MissionService:
         kind = m.mission_type
         if kind not in (0, 1, 2):
             return [self._ack(origin, mavlink2.MAV_MISSION_UNSUPPORTED, kind)]
-        items = self.api.download_mission(MissionKind(kind))
+        items = self.api.mission.download(MissionKind(kind))
         self._downloads[(origin.link, origin.addr, kind)] = items
         return [Out(self.mav.mission_count_encode(origin.sysid, origin.compid, len(items), kind), origin)]
 
@@ -231,10 +225,10 @@ class MissionService:
             return [self._ack(origin, mavlink2.MAV_MISSION_UNSUPPORTED, kind)]
         items = self._downloads.get((origin.link, origin.addr, kind))
         if items is None:
-            items = self.api.download_mission(MissionKind(kind))
+            items = self.api.mission.download(MissionKind(kind))
         if not 0 <= m.seq < len(items):
             return [self._ack(origin, mavlink2.MAV_MISSION_INVALID_SEQUENCE, kind)]
-        current = kind == 0 and m.seq == self.api.state().mission.current_seq
+        current = kind == 0 and m.seq == self.api.telemetry.state().mission.current_seq
         if self.float_form and m.get_msgId() == mavlink2.MAVLINK_MSG_ID_MISSION_REQUEST:
             return [Out(item_to_float_message(self.mav, items[m.seq], m.seq, origin, kind, current), origin)]
         return [Out(item_to_message(self.mav, items[m.seq], m.seq, origin, kind, current), origin)]
@@ -244,7 +238,7 @@ class MissionService:
         if any(k not in (0, 1, 2) for k in kinds):
             return [self._ack(origin, mavlink2.MAV_MISSION_UNSUPPORTED, m.mission_type)]
         for k in kinds:
-            r = self.api.clear_mission(MissionKind(k))
+            r = self.api.mission.clear(MissionKind(k))
             if not r.ok:
                 self.refusals.append(r)
                 return [self._ack(origin, _RESULT_TO_MISSION.get(r.result, mavlink2.MAV_MISSION_ERROR), m.mission_type)]

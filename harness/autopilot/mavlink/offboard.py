@@ -14,15 +14,9 @@ import math
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import (
-    AttitudeTarget,
-    AutopilotApi,
-    CommandResult,
-    OffboardFrame,
-    OffboardSetpoint,
-    VehicleState,
-)
+from harness.autopilot.api import AttitudeTarget, CommandResult, OffboardFrame, OffboardSetpoint, VehicleState
 from harness.autopilot.mavlink.messages import MAVLinkMessage
+from harness.autopilot.services import System
 from harness.core.geo import flat_offset_m
 
 _POS = (
@@ -164,7 +158,7 @@ def attitude_target(m: MAVLinkMessage) -> AttitudeTarget | str:
     return AttitudeTarget(quat=quat, thrust=m.thrust, body_rates_rad_s=rates)
 
 
-def handle_setpoint(api: AutopilotApi, m: MAVLinkMessage) -> CommandResult:
+def handle_setpoint(api: System, m: MAVLinkMessage) -> CommandResult:
     """Forward one setpoint message; a refusal carries the reason (counted and logged, never ACKed)."""
     mid = m.get_msgId()
     if mid in (
@@ -174,8 +168,8 @@ def handle_setpoint(api: AutopilotApi, m: MAVLinkMessage) -> CommandResult:
         sp = (
             position_target(m)
             if mid == mavlink2.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
-            else global_target(m, api.state())
+            else global_target(m, api.telemetry.state())
         )
-        return CommandResult.denied(sp) if isinstance(sp, str) else api.set_offboard_setpoint(sp)
+        return CommandResult.denied(sp) if isinstance(sp, str) else api.offboard.set_setpoint(sp)
     att = attitude_target(m)
-    return CommandResult.denied(att) if isinstance(att, str) else api.set_attitude_target(att)
+    return CommandResult.denied(att) if isinstance(att, str) else api.offboard.set_attitude(att)

@@ -13,12 +13,18 @@ import json
 import logging
 import os
 import threading
-from collections.abc import Mapping
 from pathlib import Path
 
 from harness.autopilot.params import Params
+from harness.autopilot.services import System
 
 log = logging.getLogger(__name__)
+
+
+def run_dir_of(system: System) -> Path | None:
+    """The run directory of a vehicle whose run writes files (where its ULog is), or None."""
+    logs = system.log_files.files() if system.log_files is not None else []
+    return logs[0][0].parent if logs else None
 
 
 def store_path(run_dir: Path, vehicle: int, firmware: str = "") -> Path:
@@ -75,9 +81,10 @@ def persist_params(params: Params, run_dir: Path, vehicle: int, firmware: str = 
     return refused
 
 
-def reload_params(params: Params, run_dir: Path | None, vehicle: int, overrides: Mapping[str, float]) -> list[str]:
-    """Parameters as a vehicle starting now would have them: defaults, the run's overrides, then the saved
-    file (which a ground station may have replaced, e.g. over MAVFTP). Returns the reasons of values refused."""
+def reload_params(params: Params, run_dir: Path | None, vehicle: int) -> list[str]:
+    """Parameters as a vehicle starting now would have them: defaults, the run's overrides (``params.overrides``),
+    then the saved file (which a ground station may have replaced, e.g. over MAVFTP). Returns the reasons of
+    values refused."""
     saved = ParamStore(store_path(run_dir, vehicle)).load() if run_dir is not None else {}
-    target = {d.name: d.default for d in params.defs} | dict(overrides) | saved
+    target = {d.name: d.default for d in params.defs} | params.overrides | saved
     return params.update({n: v for n, v in target.items() if n in params and params[n] != v})

@@ -13,14 +13,14 @@ import logging
 import struct
 import threading
 from collections import deque
-from collections.abc import Iterable
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, CommandResult
+from harness.autopilot.api import CommandResult
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, text_of
-from harness.autopilot.params import PARAM_DEFS, ParamDef, Params, ParamType
+from harness.autopilot.params import ParamDef, Params, ParamType
+from harness.autopilot.services import System
 
 log = logging.getLogger(__name__)
 
@@ -56,18 +56,15 @@ def decode_value(raw: float, ptype: int) -> float:
 class ParamTable:
     """Ordered names and types of the autopilot's parameters; values read and written through the API.
 
-    Uses the autopilot's own registry (``autopilot.params``) for names and order when it has one, else
-    the standard PX4 definitions.
+    The autopilot's registry (``system.params``) gives the names and the order.
     """
 
-    def __init__(self, api: AutopilotApi, bytewise: bool = True) -> None:
+    def __init__(self, api: System, bytewise: bool = True) -> None:
         self.api = api
         self.bytewise = bytewise
         """INT32 values bytewise in the float (PX4); False: the value cast to float (ArduPilot's C cast)."""
-        registry = getattr(api, "params", None)
-        self.registry: Params | None = registry if isinstance(registry, Params) else None
-        defs: Iterable[ParamDef] = self.registry.defs if self.registry is not None else PARAM_DEFS
-        self.defs: tuple[ParamDef, ...] = tuple(defs)
+        self.registry: Params = api.params
+        self.defs: tuple[ParamDef, ...] = tuple(self.registry.defs)
         self._index = {d.name: i for i, d in enumerate(self.defs)}
 
     def __len__(self) -> int:
@@ -83,7 +80,7 @@ class ParamTable:
     def value_message(self, mav: mavlink2.MAVLink, index: int) -> MAVLinkMessage:
         d = self.defs[index]
         ptype = self.mav_type(index)
-        value = self.api.get_param(d.name)
+        value = self.api.params.get(d.name)
         raw = encode_value(value, ptype) if self.bytewise else float(value)
         return mav.param_value_encode(d.name.encode(), raw, ptype, len(self.defs), index)
 
@@ -97,7 +94,7 @@ class _ListJob:
 class ParamService:
     """Answers the parameter protocol for one autopilot. Server thread only."""
 
-    def __init__(self, api: AutopilotApi, mav: mavlink2.MAVLink, per_tick: int = 40, bytewise: bool = True) -> None:
+    def __init__(self, api: System, mav: mavlink2.MAVLink, per_tick: int = 40, bytewise: bool = True) -> None:
         self.table = ParamTable(api, bytewise)
         self.api = api
         self.mav = mav
@@ -138,7 +135,7 @@ class ParamService:
         if index < 0:
             return [], CommandResult.denied(f"PARAM_SET: unknown parameter {name!r}")
         value = decode_value(m.param_value, m.param_type) if self.table.bytewise else float(m.param_value)
-        result = self.api.set_param(name, value)
+        result = self.api.params.set(name, value)
         # Echo (new or unchanged value) to everyone, like PX4: the sender sees its confirmation.
         with self._changed_lock:
             if name in self._changed:

@@ -25,7 +25,7 @@ from collections.abc import Callable, Mapping
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, VehicleState
+from harness.autopilot.api import VehicleState
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.dialect_api import Dialect, DialectHost
@@ -34,6 +34,8 @@ from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.px4_services import Px4Services
 from harness.autopilot.mavlink.telemetry import DEFAULT_INTERVALS_NS, Builder
 from harness.autopilot.mavlink.version import autopilot_version
+from harness.autopilot.params import Params
+from harness.autopilot.services import System
 
 
 class Px4Dialect:
@@ -41,8 +43,9 @@ class Px4Dialect:
 
     mission_float_form = False
     param_bytewise = True
+    own_params: Params | None = None
 
-    def __init__(self, api: AutopilotApi, sysid: int = 1) -> None:
+    def __init__(self, api: System, sysid: int = 1) -> None:
         self.api = api
         self.px4 = Px4Services(api, sysid)
         self.builders: Mapping[int, Builder] = self.px4.builders
@@ -67,19 +70,19 @@ class Px4Dialect:
         return self.px4.tick(state, now)
 
 
-def _ardupilot(api: AutopilotApi, sysid: int) -> Dialect:
+def _ardupilot(api: System, sysid: int) -> Dialect:
     from harness.autopilot.mavlink.ardupilot.dialect import CopterDialect
 
     return CopterDialect(api, sysid)
 
 
-_FACTORIES: dict[Firmware, Callable[[AutopilotApi, int], Dialect]] = {
+_FACTORIES: dict[Firmware, Callable[[System, int], Dialect]] = {
     Firmware.PX4: Px4Dialect,
     Firmware.ARDUPILOT: _ardupilot,
 }
 
 
-def make_dialect(firmware: Firmware, api: AutopilotApi, sysid: int) -> Dialect:
+def make_dialect(firmware: Firmware, api: System, sysid: int) -> Dialect:
     return _FACTORIES[firmware](api, sysid)
 
 

@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, VehicleState
+from harness.autopilot.api import VehicleState
 from harness.autopilot.mavlink.calibration import CalibrationService
 from harness.autopilot.mavlink.ftp import FtpService
 from harness.autopilot.mavlink.gimbal import CMD_CONFIGURE, GimbalService
@@ -22,12 +22,13 @@ from harness.autopilot.mavlink.reboot import RebootService
 from harness.autopilot.mavlink.service import CommandHandler, Service
 from harness.autopilot.mavlink.shell import ShellService
 from harness.autopilot.mavlink.telemetry import Builder
+from harness.autopilot.services import System
 
 _COMMAND_IDS = (mavlink2.MAVLINK_MSG_ID_COMMAND_LONG, mavlink2.MAVLINK_MSG_ID_COMMAND_INT)
 
 
 class Px4Services:
-    def __init__(self, api: AutopilotApi, sysid: int) -> None:
+    def __init__(self, api: System, sysid: int) -> None:
         vehicle = sysid - 1
         self.calibration = CalibrationService(api)
         self.gimbal = GimbalService(api, sysid)

@@ -12,13 +12,13 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
-from pathlib import Path
 
-from harness.autopilot.api import AutopilotApi, CommandResult, Severity, VehicleState
+from harness.autopilot.api import CommandResult, Severity, VehicleState
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.messages import Out
-from harness.autopilot.mavlink.param_store import reload_params
+from harness.autopilot.mavlink.param_store import reload_params, run_dir_of
 from harness.autopilot.mavlink.service import CommandHandler, Service, outcome
+from harness.autopilot.services import System
 
 log = logging.getLogger(__name__)
 
@@ -26,7 +26,7 @@ CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
 
 
 class RebootService(Service):
-    def __init__(self, api: AutopilotApi, vehicle: int) -> None:
+    def __init__(self, api: System, vehicle: int) -> None:
         super().__init__()
         self.api = api
         self.vehicle = vehicle
@@ -47,20 +47,11 @@ class RebootService(Service):
         return outcome(self.reboot())
 
     def reboot(self) -> CommandResult:
-        restart = getattr(self.api, "reboot", None)
-        if restart is None:
-            return CommandResult.unsupported("this autopilot cannot reboot")
-        if self.api.state().armed:
+        if self.api.telemetry.state().armed:
             return CommandResult.denied("Reboot denied: disarm first")
-        params = getattr(self.api, "params", None)
-        if params is not None:
-            flight_log = getattr(self.api, "flight_log", None)
-            run_dir: Path | None = flight_log.path.parent if flight_log is not None else None
-            config = getattr(self.api, "config", None)
-            overrides = getattr(config, "params", {}) or {}
-            for reason in reload_params(params, run_dir, self.vehicle, overrides):
-                log.warning("vehicle %d: reboot: saved parameter not restored: %s", self.vehicle, reason)
-        result: CommandResult = restart()
+        for reason in reload_params(self.api.params, run_dir_of(self.api), self.vehicle):
+            log.warning("vehicle %d: reboot: saved parameter not restored: %s", self.vehicle, reason)
+        result = self.api.action.reboot()
         if result.ok:
             self.reboots += 1
             self._said.append("Rebooted: flight stack restarted")

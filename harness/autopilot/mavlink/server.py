@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, FlightMode, GeoPoint, Result, Severity, VehicleState
+from harness.autopilot.api import FlightMode, GeoPoint, Result, Severity, VehicleState
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.mavlink import ftp
 from harness.autopilot.mavlink.codec import Codec, FrameStatus, SigningConfig
@@ -45,6 +45,7 @@ from harness.autopilot.mavlink.pilot import PILOT_IDS, handle_pilot
 from harness.autopilot.mavlink.tcp import TcpLink
 from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, mission_current, mission_state_of
 from harness.autopilot.mavlink.transport import GREET_NS, Address, Link, PortsConfig, UdpLink, pack_frames
+from harness.autopilot.services import System
 from harness.core.clock import WALL, Clock
 from harness.core.endpoints import SETTLE_PREFIX
 
@@ -70,7 +71,7 @@ _SETPOINT_IDS = {
 }
 _TEXT_REPEAT_NS = 2_000_000_000
 _POLL_NS = 10_000_000
-"""Without a bell (an ``AutopilotApi`` that lacks ``attach_bell``), sim-rate streams are checked every 10 ms
+"""Without a bell (a ``System`` whose ``bell`` is None), sim-rate streams are checked every 10 ms
 of wall time while sim time moves ..."""
 _POLL_PAUSED_NS = 100_000_000
 """... and every 100 ms while it stands still."""
@@ -119,7 +120,7 @@ class MavlinkServer:
 
     def __init__(
         self,
-        autopilot: AutopilotApi,
+        autopilot: System,
         vehicle: int,
         ports: PortsConfig | None = None,
         signing: SigningConfig | None = None,
@@ -166,9 +167,7 @@ class MavlinkServer:
         self.params = ParamService(autopilot, mav, bytewise=dialect.param_bytewise)
         self.missions = MissionService(autopilot, mav, float_form=dialect.mission_float_form)
         self.logs = LogService(autopilot, mav)
-        self.commands = CommandService(
-            autopilot, self._request_message, self.streams.set_interval, getattr(autopilot, "inject_failure", None)
-        )
+        self.commands = CommandService(autopilot, self._request_message, self.streams.set_interval)
         self.commands.override(dialect.command_handlers())
         self._progress = ProgressTracker()
         self.datalink = DataLinkMonitor(autopilot)
@@ -212,11 +211,10 @@ class MavlinkServer:
     def attached(self, hub: MavlinkHub) -> None:
         """Called by ``hub`` when it takes this server: hook the autopilot's bell to it (if it has one)."""
         self._hub = hub
-        attach = getattr(self.api, "attach_bell", None)
-        ring_at = getattr(self.api, "ring_at", None)
-        if attach is not None and ring_at is not None:
-            attach(self._bell)
-            self._ring_at = ring_at
+        bell = self.api.bell
+        if bell is not None:
+            bell.attach(self._bell)
+            self._ring_at = bell.ring_at
         self.next_wake_ns = 0
 
     def stop(self, timeout_s: float = 2.0) -> None:
@@ -304,7 +302,8 @@ class MavlinkServer:
             for k, link in enumerate(self.links):  # a mission's MAVSDK port, announced: greet it until it answers
                 for addr in link.greetings(now):
                     self._send(
-                        Out(self.dialect.heartbeat(self.codec.mav, self.api.state()), Origin(k, addr, 0, 0)), now
+                        Out(self.dialect.heartbeat(self.codec.mav, self.api.telemetry.state()), Origin(k, addr, 0, 0)),
+                        now,
                     )
         except Exception as e:
             self._count("handler_errors")
@@ -387,7 +386,7 @@ class MavlinkServer:
                 if self.links[link].heard(addr, now) and (link == 0 or self.links[link].name == "tcp"):
                     # a new client on the API link (MAVSDK connecting out) hears from us at once, not at the
                     # next heartbeat: it discovers the vehicle while a starting mission holds the sim clock
-                    hb = self.dialect.heartbeat(self.codec.mav, self.api.state())
+                    hb = self.dialect.heartbeat(self.codec.mav, self.api.telemetry.state())
                     self._send(Out(hb, Origin(link, addr, 0, 0)), now)
                 if self._tap is not None:
                     self._tap(bytes(m.get_msgbuf()))
@@ -399,7 +398,7 @@ class MavlinkServer:
                     self._log_once(e, f"handling {m.get_type()}")
 
     def _loop_t_ns(self) -> int:
-        return max(self._t_ns, self.api.state().t_ns)
+        return max(self._t_ns, self.api.telemetry.state().t_ns)
 
     def _sim_peers(self) -> bool:
         """Whether a peer that lives on sim time (a mission) talks to this vehicle."""
@@ -510,7 +509,7 @@ class MavlinkServer:
         elif mid == _M.MAVLINK_MSG_ID_TIMESYNC and m.tc1 == 0:
             # tc1 on the time base of every time_boot_ms and time_usec this vehicle sends: sim time since boot
             # (the last step's), as PX4 answers with its own boot time — never the host's uptime
-            t_ns = max(self._t_ns, self.api.state().t_ns)
+            t_ns = max(self._t_ns, self.api.telemetry.state().t_ns)
             self._send(Out(self.codec.mav.timesync_encode(t_ns, m.ts1), origin), now)
 
     def _command(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
@@ -546,7 +545,7 @@ class MavlinkServer:
         builder = self.builders.get(msg_id)
         if builder is None:
             return None
-        msg = builder(mav, self.api.state(), self._boot_ms())
+        msg = builder(mav, self.api.telemetry.state(), self._boot_ms())
         return "" if msg is None else msg  # no home yet: TEMPORARILY_REJECTED, no STATUSTEXT (MAVSDK polls)
 
     # ------------------------------------------------------------------ periodic
@@ -554,14 +553,14 @@ class MavlinkServer:
         return (self._t_ns // 1_000_000) & 0xFFFFFFFF
 
     def _tick(self, now: int) -> None:
-        state = self.api.state()
+        state = self.api.telemetry.state()
         if self._first_t_ns is None:
             self._first_t_ns = state.t_ns
         # decided at sim time: by the stepping thread (the bell), or by the hub when nobody steps the autopilot
         # (it has not moved since this server started); never by the hub during a long phase of a mission
         at_sim_time = self._stepping or self._ring_at is None or state.t_ns == self._first_t_ns
         if self._home_on_first_fix and state.home is None and at_sim_time and self._set_home_at_first_fix(state):
-            state = self.api.state()
+            state = self.api.telemetry.state()
         self._sim_moving = state.t_ns > self._t_ns
         self._t_ns = max(self._t_ns, state.t_ns)
         mav = self.codec.mav
@@ -583,14 +582,14 @@ class MavlinkServer:
         m = state.mission
         if self._progress.changed(m.current_seq, m.count, mission_state_of(state), in_mission):
             outs.append(Out(mission_current(mav, state, t_ms)))
-        for reached in self.api.pop_mission_reached():
+        for reached in self.api.telemetry.pop_mission_reached():
             outs.append(Out(mav.mission_item_reached_encode(reached.seq & 0xFFFF)))
         outs += self.dialect.tick(state, self._peer_now(now))
         self._send_all(outs, now)
         lost = self.datalink.check(state, self._peer_now(now))
         if lost:
             self._say(Severity.CRITICAL, lost, now)
-        for text in self.api.pop_status_texts():
+        for text in self.api.telemetry.pop_status_texts():
             self._say(text.severity, text.text, now)
         self._send_all(self.params.tick(), now)
         self._send_all(self.missions.tick(self._peer_now(now)), now)
@@ -606,7 +605,7 @@ class MavlinkServer:
         if self._home_try_ns is not None and state.t_ns - self._home_try_ns < 1_000_000_000:
             return False
         self._home_try_ns = state.t_ns
-        return self.api.set_home(None).ok
+        return self.api.action.set_home(None).ok
 
     def _mission_refusals(self, now: int) -> None:
         for r in self.missions.pop_refusals():

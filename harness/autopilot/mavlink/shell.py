@@ -30,12 +30,13 @@ from collections.abc import Callable
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from harness.autopilot.api import AutopilotApi, CommandResult, FlightMode, VehicleState
+from harness.autopilot.api import CommandResult, FlightMode, VehicleState
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.parameters import ParamTable
 from harness.autopilot.mavlink.service import Service
 from harness.autopilot.mavlink.version import FLIGHT_SW_VERSION
 from harness.autopilot.params import ParamType
+from harness.autopilot.services import System
 
 _M = mavlink2
 CHUNK = 70
@@ -78,7 +79,7 @@ class ShellService(Service):
 
     def __init__(
         self,
-        api: AutopilotApi,
+        api: System,
         reboot: Callable[[], CommandResult],
         gimbal_attitude: Callable[[], tuple[float, float]] | None = None,
     ) -> None:
@@ -178,7 +179,7 @@ class ShellService(Service):
             lines = ["Symbols: x = used, + = saved, * = unsaved"]
             for i, d in enumerate(t.defs):
                 if fnmatch.fnmatchcase(d.name, pattern):
-                    v = self.api.get_param(d.name)
+                    v = self.api.params.get(d.name)
                     value = f"{int(v)}" if d.type == ParamType.INT32 else f"{float(v):.4f}"
                     used = "x" if d.flown else " "
                     saved = "+" if v != d.default else " "
@@ -191,7 +192,7 @@ class ShellService(Service):
             if index < 0:
                 return f"ERROR: Parameter {name} not found.\n"
             d = t.defs[index]
-            old = self.api.get_param(name)
+            old = self.api.params.get(name)
             if sub == "get":
                 return f"{int(old)}\n" if d.type == ParamType.INT32 else f"{float(old):.4f}\n"
             if len(args) < 3:
@@ -200,10 +201,10 @@ class ShellService(Service):
                 number = float(args[2])
             except ValueError:
                 return f"ERROR: {args[2]!r} is not a number\n"
-            r = self.api.set_param(name, number)
+            r = self.api.params.set(name, number)
             if not r.ok:
                 return f"ERROR: {r.reason}\n"
-            new = self.api.get_param(name)
+            new = self.api.params.get(name)
             if d.type == ParamType.INT32:
                 return f"{name}: curr: {int(old)} -> new: {int(new)}\n"
             return f"{name}: curr: {float(old):.4f} -> new: {float(new):.4f}\n"
@@ -220,20 +221,20 @@ class ShellService(Service):
         sub, force = args[0], "-f" in args[1:]
         r: CommandResult
         if sub == "arm":
-            r = api.arm(force)
+            r = api.action.arm(force)
         elif sub == "disarm":
-            r = api.disarm(force)
+            r = api.action.disarm(force)
         elif sub == "takeoff":
-            r = api.takeoff(None)
+            r = api.action.takeoff(None)
         elif sub == "land":
-            r = api.land()
+            r = api.action.land()
         elif sub == "mode" and len(args) >= 2:
             mode = _MODES.get(args[1])
             if mode is None:
                 return f"Unknown mode: {args[1]} (one of {', '.join(_MODES)})\n"
-            r = api.set_mode(mode)
+            r = api.action.set_mode(mode)
         elif sub == "status":
-            s = api.state()
+            s = api.telemetry.state()
             return f"armed: {s.armed}\nmode: {s.mode.name}\nlanded: {not s.in_air}\nfailsafe: {s.failsafe or 'none'}\n"
         else:
             return f"commander: unknown command {sub!r}\n"
@@ -255,7 +256,7 @@ class ShellService(Service):
                 n = max(1, min(10, int(args[args.index("-n") + 1])))
             except (IndexError, ValueError):
                 return "usage: listener TOPIC [-n COUNT]\n"
-        s = self.api.state()
+        s = self.api.telemetry.state()
         body = self._topic(topic, s)
         us = max(s.t_ns, 0) // 1000
         one = f"\nTOPIC: {topic}\n {topic}\n    timestamp: {us} (0.000000 seconds ago)\n" + body

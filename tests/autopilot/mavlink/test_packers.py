@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import ardupilotmega, common, minimal
 from harness.autopilot.mavlink import SigningConfig
 from harness.autopilot.mavlink.codec import Codec, FrameStatus, signing_timestamp
 from harness.autopilot.mavlink.packers import FrameEncoder, Signer, crc16, crc16_stdlib, packer_for
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 KEY = hashlib.sha256(b"packers").digest()
 DIALECTS = (common, ardupilotmega)

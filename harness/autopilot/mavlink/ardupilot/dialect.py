@@ -25,16 +25,14 @@ from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import (
-    AutopilotApi,
     CommandResult,
     FlightMode,
     MavFrame,
-    OffboardSetpoint,
     Severity,
     StatusText,
     VehicleState,
 )
-from harness.autopilot.mavlink.ardupilot.adapter import CopterApi, copter_text
+from harness.autopilot.mavlink.ardupilot.adapter import CopterSystem, copter_text
 from harness.autopilot.mavlink.ardupilot.guided import (
     RELATIVE_GLOBAL,
     Goto,
@@ -72,6 +70,7 @@ from harness.autopilot.mavlink.dialect_api import DialectHost
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, is_set
 from harness.autopilot.mavlink.telemetry import SENSOR_GEOFENCE, Builder, sys_status
 from harness.autopilot.params import Params
+from harness.autopilot.services import System
 from harness.autopilot.validate import finite
 from harness.core.geo import flat_offset_m
 
@@ -115,11 +114,11 @@ class CopterDialect:
     mission_float_form = True
     param_bytewise = False
 
-    def __init__(self, core: AutopilotApi, sysid: int) -> None:
-        registry = getattr(core, "params", None)
+    def __init__(self, core: System, sysid: int) -> None:
         self._core = core
-        self.params = CopterParams(registry if isinstance(registry, Params) else Params(), sysid)
-        self.api: AutopilotApi = CopterApi(core, self.params)
+        self.params = CopterParams(core.params, sysid)
+        self.own_params: Params | None = self.params
+        self.api: System = CopterSystem(core, self.params)
         self.modes = ModeTracker()
         self.rc = RcInput(self.params)
         self.builders: Mapping[int, Builder] = {
@@ -220,7 +219,7 @@ class CopterDialect:
         if mode not in SUPPORTED:
             names = ", ".join(m.name for m in sorted(SUPPORTED))
             return CommandResult.denied(f"Mode change to {mode.name} failed: not flown here (modes: {names})")
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if mode == self.modes.shown(st.mode):
             return CommandResult.accepted()
         rc_live = self.rc.any_active(st.t_ns)
@@ -228,15 +227,15 @@ class CopterDialect:
             self._core_rc(rc_live)
         if mode in STICK_CORE_MODE and rc_live:  # a pilot: the mode flies on the sticks
             self._sticks(st, mode)
-            r = self.api.set_mode(STICK_CORE_MODE[mode])
+            r = self.api.action.set_mode(STICK_CORE_MODE[mode])
         elif mode is CopterMode.STABILIZE:
             if st.armed and st.in_air:
                 return CommandResult.denied("Mode change to STABILIZE failed: it needs RC input, none is configured")
-            r = self.api.hold()
+            r = self.api.action.hold()
         elif mode is CopterMode.CIRCLE:
             r = self._circle(st)
         else:
-            r = self.api.set_mode(CORE_MODE[mode])
+            r = self.api.action.set_mode(CORE_MODE[mode])
         if not r.ok:
             return CommandResult(r.result, f"Mode change to {mode.name} failed: {r.reason}")
         self.modes.select(mode)
@@ -252,7 +251,7 @@ class CopterDialect:
         n, e, d = st.pos_ned_m
         lat, lon, _ = geo_of_local(st, (n + radius * math.cos(st.yaw_rad), e + radius * math.sin(st.yaw_rad), d))
         speed = abs(math.radians(rate)) * radius
-        return self.api.orbit(radius if rate >= 0 else -radius, max(speed, 0.1), lat, lon, st.alt_amsl_m)
+        return self.api.action.orbit(radius if rate >= 0 else -radius, max(speed, 0.1), lat, lon, st.alt_amsl_m)
 
     # ------------------------------------------------------------------ RC input
     def _rc_timeout_to_core(self) -> None:
@@ -272,14 +271,14 @@ class CopterDialect:
             core.set("COM_RC_IN_MODE", want)
 
     def _sticks(self, st: VehicleState, mode: CopterMode) -> None:
-        manual: Callable[[int, int, int, int], CommandResult] | None = getattr(self.api, "manual_control", None)
+        manual = self.api.manual_control
         if manual is not None:
-            manual(*self.rc.sticks(st.t_ns, mode in ALT_HOLDING))
+            manual.set_sticks(*self.rc.sticks(st.t_ns, mode in ALT_HOLDING))
 
     def _rc_override(self, m: MAVLinkMessage, origin: Origin) -> None:
         """RC_CHANNELS_OVERRIDE (``rc.py``): in a pilot mode the sticks fly the vehicle; a released channel reads
         the radio again at once (SITL's: throttle low)."""
-        st = self.api.state()
+        st = self.api.telemetry.state()
         values = [int(getattr(m, f"chan{i}_raw", 0xFFFF if i <= 8 else 0)) for i in range(1, CHANNELS + 1)]
         if not self.rc.override(origin.sysid, values, st.t_ns):
             return
@@ -290,7 +289,11 @@ class CopterDialect:
             return
         if not live and not st.in_air:  # every channel released on the ground: the mode flies without a pilot
             if st.mode is STICK_CORE_MODE[shown]:
-                r = self.api.hold() if shown is CopterMode.STABILIZE else self.api.set_mode(CORE_MODE[shown])
+                r = (
+                    self.api.action.hold()
+                    if shown is CopterMode.STABILIZE
+                    else self.api.action.set_mode(CORE_MODE[shown])
+                )
                 if not r.ok:
                     log.info("vehicle %d: RC released in %s: %s", self.api.vehicle, shown.name, r.reason)
             self._core_rc(False)
@@ -299,7 +302,7 @@ class CopterDialect:
         self._sticks(st, shown)
         core_mode = STICK_CORE_MODE[shown]
         if st.mode is not core_mode:
-            r = self.api.set_mode(core_mode)
+            r = self.api.action.set_mode(core_mode)
             if not r.ok:
                 log.info("vehicle %d: RC override in %s: %s", self.api.vehicle, shown.name, r.reason)
 
@@ -335,7 +338,7 @@ class CopterDialect:
             log.info(
                 "vehicle %d: DO_CHANGE_SPEED %g m/s flies at %g m/s (MPC_XY_VEL_MAX)", self.api.vehicle, speed, flown
             )
-        r = self.api.change_speed(flown)
+        r = self.api.action.change_speed(flown)
         return CommandOutcome(r if r.ok else CommandResult.failed(f"Change speed failed: {r.reason}"))
 
     def _reboot(self, cmd: CommandIn) -> CommandOutcome:
@@ -343,10 +346,7 @@ class CopterDialect:
         stack restarts in place (``Autopilot.reboot``), in STABILIZE, and says so as ArduCopter boots."""
         if cmd.params[0] not in (1.0, 3.0):
             return CommandOutcome(CommandResult.unsupported("Reboot: only param1 = 1 (reboot the autopilot) is done"))
-        fn: Callable[[], CommandResult] | None = getattr(self.api, "reboot", None)
-        if fn is None:
-            return CommandOutcome(CommandResult.unsupported("this autopilot cannot reboot"))
-        r = fn()
+        r = self.api.action.reboot()
         if not r.ok:
             return CommandOutcome(r)
         self.modes = ModeTracker()
@@ -363,7 +363,7 @@ class CopterDialect:
         relative = RELATIVE_GLOBAL.get(MavFrame(cmd.frame)) if cmd.frame in set(MavFrame) else None
         if relative is None:
             return CommandOutcome(CommandResult.denied("DO_REPOSITION: send it as COMMAND_INT in a global frame"))
-        st = self.api.state()
+        st = self.api.telemetry.state()
         changed = False
         if self.modes.shown(st.mode) is not CopterMode.GUIDED:
             if not (math.isfinite(cmd.params[1]) and int(cmd.params[1]) & 1):
@@ -378,7 +378,7 @@ class CopterDialect:
         r = self._goto(Goto(*point))
         speed = cmd.params[0]
         if r.ok and math.isfinite(speed) and speed > 0:
-            self.api.change_speed(speed)
+            self.api.action.change_speed(speed)
         return CommandOutcome(r, mode_or_arming_changed=changed)
 
     def _do_set_mode(self, cmd: CommandIn) -> CommandOutcome:
@@ -388,18 +388,18 @@ class CopterDialect:
     def _arm(self, cmd: CommandIn) -> CommandOutcome:
         p1, force = cmd.params[0], cmd.params[1] == FORCE_MAGIC
         if p1 == 0.0:
-            r = self.api.disarm(force)
+            r = self.api.action.disarm(force)
             return CommandOutcome(r, mode_or_arming_changed=r.ok)
         if p1 != 1.0:
             return CommandOutcome(CommandResult.denied(f"ARM_DISARM param1 must be 1 (arm) or 0 (disarm), got {p1}"))
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if st.armed:
             return CommandOutcome(CommandResult.accepted())
         checks = int(self.params["ARMING_CHECK"]) != 0 and not force
         shown = self.modes.shown(st.mode)
         if checks and shown not in ARMABLE:
             return CommandOutcome(CommandResult.denied("Arm: Mode not armable"))
-        r = self.api.arm(not checks)
+        r = self.api.action.arm(not checks)
         if not r.ok:
             r = CommandResult(r.result, copter_text_reason(r.reason))
         self._armed_at_t_ns = st.t_ns if r.ok else None
@@ -407,7 +407,7 @@ class CopterDialect:
 
     def _takeoff(self, cmd: CommandIn) -> CommandOutcome:
         alt = cmd.params[6]
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if not (st.armed or st.t_ns == self._armed_at_t_ns):  # armed, or just now (a takeoff may follow at once)
             return CommandOutcome(CommandResult.denied("Takeoff: vehicle not armed"))
         shown = self.modes.shown(st.mode)
@@ -417,14 +417,14 @@ class CopterDialect:
             return CommandOutcome(CommandResult.denied("Takeoff: already flying"))
         if not math.isfinite(alt) or alt <= 0.0:
             return CommandOutcome(CommandResult.denied(f"Takeoff: altitude {alt} m above home is not valid"))
-        r = self.api.takeoff(alt)  # relative to home, as ArduCopter reads param 7
+        r = self.api.action.takeoff(alt)  # relative to home, as ArduCopter reads param 7
         return CommandOutcome(r, mode_or_arming_changed=r.ok)
 
     def _condition_yaw(self, cmd: CommandIn) -> CommandOutcome:
         angle, _speed, direction, relative = cmd.params[:4]
         if not finite([angle, direction, relative]):
             return CommandOutcome(CommandResult.denied("CONDITION_YAW with NaN or infinite parameters"))
-        st = self.api.state()
+        st = self.api.telemetry.state()
         yaw = math.radians(angle)
         if relative:
             yaw = st.yaw_rad + (-yaw if direction < 0 else yaw)
@@ -434,10 +434,7 @@ class CopterDialect:
         return CommandOutcome(r)
 
     def _set_yaw(self, yaw: float | None) -> CommandResult:
-        fn: Callable[[float | None], CommandResult] | None = getattr(self.api, "set_yaw", None)
-        if fn is None:
-            return CommandResult.unsupported("this autopilot cannot point its nose on command")
-        return fn(yaw)
+        return self.api.action.set_yaw(yaw)
 
     def _set_roi(self, cmd: CommandIn) -> CommandOutcome:
         p = cmd.params
@@ -490,26 +487,23 @@ class CopterDialect:
     def _attitude_target(self, m: MAVLinkMessage, now: int) -> None:
         """SET_ATTITUDE_TARGET in GUIDED and GUIDED_NOGPS (:func:`.guided.attitude_target`); ignored elsewhere,
         as ArduCopter does. It runs on the core's offboard control, which stops after GUID_TIMEOUT without one."""
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if self.modes.shown(st.mode) not in ATTITUDE_TARGETS:
             log.debug("vehicle %d: attitude target ignored outside GUIDED", self.api.vehicle)
             return
         p = self.params
         sp = attitude_target(m, st, p["WPNAV_SPEED_UP"] / 100.0, p["WPNAV_SPEED_DN"] / 100.0)
-        axes: Callable[[OffboardSetpoint], CommandResult] | None = getattr(self.api, "set_offboard_axes", None)
         if isinstance(sp, str):
             r = CommandResult.denied(sp)
-        elif axes is None:
-            r = CommandResult.unsupported("attitude targets need set_offboard_axes of the flight core")
         else:
-            r = axes(sp)
+            r = self.api.offboard.set_axes(sp)
             if r.ok and st.mode is not FlightMode.OFFBOARD:
-                r = self.api.set_mode(FlightMode.OFFBOARD)
+                r = self.api.action.set_mode(FlightMode.OFFBOARD)
         if not r.ok and r.reason and self._host is not None:
             self._host.say(Severity.WARNING, r.reason, now)
 
     def _guided_item(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out]:
-        st = self.api.state()
+        st = self.api.telemetry.state()
         code = _M.MAV_MISSION_ACCEPTED
         reason = ""
         if self.modes.shown(st.mode) is not CopterMode.GUIDED:
@@ -532,10 +526,10 @@ class CopterDialect:
 
     def _goto(self, goto: Goto) -> CommandResult:
         yaw = goto.yaw_rad if goto.yaw_rad is not None else self._yaw_hold
-        return self.api.reposition(goto.lat_deg, goto.lon_deg, goto.alt_amsl_m, yaw)
+        return self.api.action.reposition(goto.lat_deg, goto.lon_deg, goto.alt_amsl_m, yaw)
 
     def _position_target(self, m: MAVLinkMessage, now: int) -> None:
-        st = self.api.state()
+        st = self.api.telemetry.state()
         if self.modes.shown(st.mode) is not CopterMode.GUIDED:
             log.debug("vehicle %d: position target ignored outside GUIDED", self.api.vehicle)
             return
@@ -554,9 +548,9 @@ class CopterDialect:
             sp = target.setpoint
             if sp.yaw_rad is None and sp.yaw_rate_rad_s is None and self._yaw_hold is not None:
                 sp = type(sp)(sp.position_m, sp.velocity_m_s, sp.accel_m_s2, self._yaw_hold, None, sp.frame)
-            r = self.api.set_offboard_setpoint(sp)
+            r = self.api.offboard.set_setpoint(sp)
             if r.ok and st.mode is not FlightMode.OFFBOARD:
-                r = self.api.set_mode(FlightMode.OFFBOARD)
+                r = self.api.action.set_mode(FlightMode.OFFBOARD)
         if not r.ok and r.reason and self._host is not None:
             self._host.say(Severity.WARNING, r.reason, now)
 
@@ -576,8 +570,7 @@ class CopterDialect:
                 self._set_yaw(math.atan2(de, dn))
         booting = state.t_ns < PREARM_FIRST_NS
         if not state.armed and not booting and not state.health.preflight_ok and now >= self._prearm_next_ns:
-            check: Callable[[], str] | None = getattr(self._core, "arming_check", None)
-            reason = check() if check is not None and int(self.params["ARMING_CHECK"]) != 0 else ""
+            reason = self._core.telemetry.arming_check() if int(self.params["ARMING_CHECK"]) != 0 else ""
             if reason and self._host is not None:
                 self._prearm_next_ns = now + PREARM_REPORT_NS
                 self._host.say(Severity.CRITICAL, f"PreArm: {reason}", now)

@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from harness.autopilot.mavlink import SigningConfig
 from harness.autopilot.mavlink.codec import Codec, FrameStatus
 from harness.core.clock import real_time_ns
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 KEY = hashlib.sha256(b"uav-harness test key").digest()
@@ -178,7 +178,7 @@ def _hover_fuzz(gcs: Gcs, n: int) -> None:
         assert worst <= 0.5, f"drifted {worst:.2f} m from the hover point under fuzzing: {c}"
         assert c.malformed + c.unknown_msg >= 0.7 * n
         assert c.handler_errors == 0 or rig.server.alive
-        assert rig.ap.state().mode.name == "HOLD" and rig.ap.state().armed
+        assert rig.ap.telemetry.state().mode.name == "HOLD" and rig.ap.telemetry.state().armed
         assert gcs.command(512, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION).result == M.MAV_RESULT_ACCEPTED
     finally:
         rig.stop()

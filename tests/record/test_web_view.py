@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from harness.record.rrd import vehicle_color
+from harness.record.scene import vehicle_color
 from harness.record.sink import rerun_available
-from tests.view.browser import chromium, find_chromium, open_page
+from tests.record.browser import chromium, find_chromium, open_page
 
 pytestmark = pytest.mark.sim
 ROOT = Path(__file__).resolve().parents[2]

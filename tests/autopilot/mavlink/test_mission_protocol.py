@@ -10,7 +10,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import MissionKind
 from harness.core.clock import real_monotonic_ns
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 LAT0, LON0 = 47.397742, 8.545594
@@ -88,7 +88,7 @@ def test_upload_download_round_trip(gcs: Gcs, idle_rig: Rig, kind: int) -> None:
     items = _items(kind)
     ack = upload(gcs, kind, items)
     assert ack.type == M.MAV_MISSION_ACCEPTED  # type: ignore[attr-defined]
-    assert len(idle_rig.ap.download_mission(MissionKind(kind))) == len(items)
+    assert len(idle_rig.ap.mission.download(MissionKind(kind))) == len(items)
     back = download(gcs, kind)
     assert len(back) == len(items)
     assert all(_same(i, m) for i, m in zip(items, back, strict=True))
@@ -109,7 +109,7 @@ def test_upload_retries_a_lost_request_and_clear_all(gcs: Gcs, idle_rig: Rig) ->
     assert gcs.command(224, 9, 0).result == M.MAV_RESULT_DENIED
     gcs.send(gcs.mav.mission_clear_all_encode(1, 1, 0))
     assert gcs.recv("MISSION_ACK").type == M.MAV_MISSION_ACCEPTED
-    assert idle_rig.ap.download_mission() == ()
+    assert idle_rig.ap.mission.download() == ()
 
 
 def test_refused_mission_gets_an_error_ack_and_reason(gcs: Gcs, idle_rig: Rig) -> None:

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from harness.core import lifeline
+from tests.helpers import wait_until
 
 # The child: optionally waits (the parent can die before it ties itself), ties itself, says so in a file,
 # and would then live for a minute.
@@ -39,7 +40,7 @@ print(child.pid, flush=True)
 if sys.argv[5] == "wait":
     time.sleep(60)
 """
-SRC = str(Path(__file__).resolve().parents[1])
+SRC = str(Path(__file__).resolve().parents[2])
 
 
 def _alive(pid: int) -> bool:
@@ -72,9 +73,7 @@ def test_the_child_dies_when_its_parent_is_killed_after_it_tied_itself(tmp_path:
     marker = tmp_path / "tied"
     parent, child = _parent(marker, 0.0, "wait")
     try:
-        deadline = time.monotonic() + 30
-        while not marker.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(marker.exists, 30.0, "the child to tie itself", poll_s=0.05)
         assert marker.read_text() == "tied False"  # tied, and its own children are not: the variable is gone
         assert _alive(child)
         parent.send_signal(signal.SIGKILL)

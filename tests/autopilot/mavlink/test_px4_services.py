@@ -14,8 +14,8 @@ from pymavlink.dialects.v20 import common as M
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.autopilot.mavlink.transport import PortsConfig
 from harness.autopilot.sitl import attach_mavlink
+from tests.autopilot.mavlink.conftest import Gcs
 from tests.autopilot.quadsim import QuadSim
-from tests.mavlink.conftest import Gcs
 
 pyulog = pytest.importorskip("pyulog")
 

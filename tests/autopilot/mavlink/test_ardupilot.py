@@ -4,7 +4,6 @@ scripts use it (``tcp:127.0.0.1:<SERIAL0>``), on a real Autopilot flown by the t
 from __future__ import annotations
 
 import math
-import socket
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -28,7 +27,8 @@ from harness.autopilot.mavlink.tcp import take_frames
 from harness.autopilot.params import Params
 from harness.core.errors import ScenarioError
 from harness.core.geo import quat_from_euler
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
+from tests.helpers import free_tcp_port, wait_until
 
 M = mavlink2
 
@@ -129,12 +129,6 @@ def test_take_frames_reassembles_a_tcp_stream_cut_anywhere(cuts: list[int], junk
 
 
 # ---------------------------------------------------------------------- over TCP
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class Client:
     """pymavlink over TCP, as an ArduPilot script connects to SITL's SERIAL0."""
 
@@ -166,7 +160,7 @@ class Client:
 def copter(gcs: Gcs) -> Iterator[tuple[Rig, Client, int]]:
     rig = Rig(gcs, speed=4.0, **core_param_defaults(Firmware.ARDUPILOT))
     rig.server.stop()
-    port = _free_tcp_port()
+    port = free_tcp_port()
     ports = PortsConfig(api_port_base=gcs.port, gcs_port=0, tcp_port_base=port)
     rig.server = MavlinkServer(rig.ap, 0, ports, firmware=Firmware.ARDUPILOT)
     rig.start()
@@ -203,7 +197,7 @@ def test_identity_modes_and_a_guided_flight_over_tcp(copter: tuple[Rig, Client, 
     assert hb.custom_mode == CopterMode.GUIDED and hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
 
     # simple_goto: MISSION_ITEM current=2, relative altitude
-    s = rig.ap.state()
+    s = rig.ap.telemetry.state()
     lat, lon = s.lat_deg + 10 / 111_195, s.lon_deg
     c.conn.mav.mission_item_send(1, 1, 0, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, 16, 2, 0, 0, 0, 0, 0, lat, lon, 8)
     assert c.recv("MISSION_ACK").type == M.MAV_MISSION_ACCEPTED
@@ -219,7 +213,7 @@ def test_identity_modes_and_a_guided_flight_over_tcp(copter: tuple[Rig, Client, 
     assert c.recv("HEARTBEAT").custom_mode == CopterMode.GUIDED
     # DO_REPOSITION (QGC's "go to" on ArduPilot): from LOITER only with the change-mode flag, then GUIDED
     assert c.mode("LOITER").result == M.MAV_RESULT_ACCEPTED
-    s = rig.ap.state()
+    s = rig.ap.telemetry.state()
     lat_int, lon_int = round((s.lat_deg - 8 / 111_195) * 1e7), round(s.lon_deg * 1e7)
 
     def reposition(flags: int) -> Any:
@@ -237,7 +231,7 @@ def test_identity_modes_and_a_guided_flight_over_tcp(copter: tuple[Rig, Client, 
 def test_mission_with_home_at_item_zero_float_and_int(copter: tuple[Rig, Client, int]) -> None:
     rig, c, port = copter
     c.recv("HEARTBEAT")
-    s = rig.ap.state()
+    s = rig.ap.telemetry.state()
     c.conn.waypoint_clear_all_send()
     c.conn.waypoint_count_send(3)
     items = [
@@ -250,7 +244,7 @@ def test_mission_with_home_at_item_zero_float_and_int(copter: tuple[Rig, Client,
         seq, frame, cmd, x, y, z = items[req.seq]
         c.conn.mav.mission_item_send(1, 1, seq, frame, cmd, 0, 1, 0, 0, 0, 0, x, y, z)
     assert c.recv("MISSION_ACK").type == M.MAV_MISSION_ACCEPTED
-    core = rig.ap.download_mission()
+    core = rig.ap.mission.download()
     assert [(it.seq, it.command) for it in core] == [(0, 22), (1, 16)]
 
     other = Client(port)  # a second client on the same TCP port downloads it, int form
@@ -267,7 +261,7 @@ def test_mission_with_home_at_item_zero_float_and_int(copter: tuple[Rig, Client,
         other.close()
     c.conn.waypoint_set_current_send(2)
     c.recv("MISSION_CURRENT", 3.0, lambda m: m.seq == 2)
-    assert rig.ap.state().mission.current_seq == 1
+    assert rig.ap.telemetry.state().mission.current_seq == 1
 
 
 def test_parameters_by_ardupilot_names_as_c_cast_floats(copter: tuple[Rig, Client, int]) -> None:
@@ -298,30 +292,19 @@ def test_unknown_item_frames_and_mission_item_outside_guided_are_refused(copter:
     c.conn.mav.mission_item_send(1, 1, 0, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, 16, 2, 0, 0, 0, 0, 0, 47.0, 8.0, 10)
     assert "GUIDED" in c.recv("STATUSTEXT", 3.0, lambda m: "Guided" in m.text).text
     assert c.recv("MISSION_ACK").type == M.MAV_MISSION_ERROR  # not in GUIDED
-    assert rig.ap.state().mode is FlightMode.HOLD
+    assert rig.ap.telemetry.state().mode is FlightMode.HOLD
 
 
 def test_items_dropped_seq_zero_renumbered() -> None:
-    from harness.autopilot.mavlink.ardupilot.adapter import CopterApi
+    from harness.autopilot.autopilot import Autopilot
+    from harness.autopilot.mavlink.ardupilot.adapter import CopterSystem
 
-    class Core:
-        vehicle = 0
-
-        def __init__(self) -> None:
-            self.params = Params()
-            self.got: list[MissionItem] = []
-
-        def upload_mission(self, items: Any, kind: Any) -> Any:
-            self.got = list(items)
-            from harness.autopilot.api import CommandResult
-
-            return CommandResult.accepted()
-
-    core = Core()
-    api = CopterApi(core, CopterParams(core.params, 1))  # type: ignore[arg-type]
+    core = Autopilot()
+    api = CopterSystem(core, CopterParams(core.params, 1))
     items = [MissionItem(i, 3, 16, x=1, y=1, z=5.0) for i in range(3)]
-    assert api.upload_mission(items).ok
-    assert [it.seq for it in core.got] == [0, 1]
+    assert api.mission.upload(items).ok
+    assert [it.seq for it in core.mission.download()] == [0, 1]
+    assert [it.seq for it in api.mission.download()] == [0, 1, 2]  # item 0: home again
 
 
 def test_refusals_read_as_ardupilot_words() -> None:
@@ -365,10 +348,7 @@ def test_tcp_clients_come_and_go(copter: tuple[Rig, Client, int]) -> None:
         other.close()
     assert c.recv("HEARTBEAT").autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA
     tcp = next(lk for lk in rig.server.links if lk.name == "tcp")
-    end = time.monotonic() + 3.0
-    while len(tcp.destinations(0)) != 1 and time.monotonic() < end:
-        time.sleep(0.05)
-    assert len(tcp.destinations(0)) == 1  # only the first client is left
+    wait_until(lambda: len(tcp.destinations(0)) == 1, 3.0, "only the first client left", poll_s=0.05)
 
 
 def test_streams_of_arducopters_groups_rc_imu_pressure_and_outputs(copter: tuple[Rig, Client, int]) -> None:
@@ -411,16 +391,16 @@ def test_rc_override_flies_alt_hold_and_times_out(copter: tuple[Rig, Client, int
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
     assert c.recv("RC_CHANNELS", 3.0, lambda m: m.chan3_raw == 1100).chan1_raw == 1500
     end = time.monotonic() + 40
-    while rig.ap.state().rel_alt_m < 5.0:
+    while rig.ap.telemetry.state().rel_alt_m < 5.0:
         assert time.monotonic() < end, "no climb on throttle 1750"
         _override(c, 1500, 1500, 1750, 1500)
         time.sleep(0.1)
     assert c.recv("HEARTBEAT").custom_mode == CopterMode.ALT_HOLD
-    s0 = rig.ap.state()
+    s0 = rig.ap.telemetry.state()
     for _ in range(20):  # mid throttle: hold the altitude; roll right
         _override(c, 1700, 1500, 1500, 1500)
         time.sleep(0.1)
-    s1 = rig.ap.state()
+    s1 = rig.ap.telemetry.state()
     assert abs(s1.rel_alt_m - s0.rel_alt_m) < 1.0 and s1.pos_ned_m[1] - s0.pos_ned_m[1] > 1.0
     c.recv("LOCAL_POSITION_NED", 3.0)
     # no more overrides: 3 s of sim time later (RC_OVERRIDE_TIME) the vehicle lands
@@ -441,24 +421,24 @@ def test_set_attitude_target_flies_guided_nogps_with_thrust_as_climb_rate(copter
     _attitude(c, thrust=0.9)  # STABILIZE: ignored
     assert c.mode("GUIDED_NOGPS").result == M.MAV_RESULT_ACCEPTED
     assert c.recv("HEARTBEAT", 3.0, lambda m: m.custom_mode == CopterMode.GUIDED_NOGPS)
-    assert rig.ap.state().mode is FlightMode.HOLD
+    assert rig.ap.telemetry.state().mode is FlightMode.HOLD
     assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == M.MAV_RESULT_ACCEPTED
     end = time.monotonic() + 40
-    while rig.ap.state().rel_alt_m < 2.4:
+    while rig.ap.telemetry.state().rel_alt_m < 2.4:
         assert time.monotonic() < end, "no climb on thrust 0.7"
         _attitude(c, thrust=0.7)
         time.sleep(0.1)
-    s0 = rig.ap.state()
+    s0 = rig.ap.telemetry.state()
     assert s0.mode is FlightMode.OFFBOARD and c.recv("HEARTBEAT").custom_mode == CopterMode.GUIDED_NOGPS
     for _ in range(15):
         _attitude(c, thrust=0.5)
         time.sleep(0.1)
-    s1 = rig.ap.state()
+    s1 = rig.ap.telemetry.state()
     assert abs(s1.rel_alt_m - s0.rel_alt_m) < 0.8  # held (the climb brakes within it)
     for _ in range(15):
         _attitude(c, pitch_deg=-5.0, thrust=0.5)
         time.sleep(0.1)
-    s2 = rig.ap.state()
+    s2 = rig.ap.telemetry.state()
     fwd = (s2.pos_ned_m[0] - s1.pos_ned_m[0]) * math.cos(s1.yaw_rad) + (s2.pos_ned_m[1] - s1.pos_ned_m[1]) * math.sin(
         s1.yaw_rad
     )
@@ -486,7 +466,7 @@ def test_reboot_restarts_the_flight_stack_in_place(copter: tuple[Rig, Client, in
     assert c.recv("STATUSTEXT", 5.0, lambda m: m.text.startswith("ArduCopter V4.5.7"))
     hb = c.recv("HEARTBEAT", 3.0)
     assert hb.custom_mode == CopterMode.STABILIZE and not hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
-    assert rig.ap.state().home is None or rig.ap.state().t_ns > 0
+    assert rig.ap.telemetry.state().home is None or rig.ap.telemetry.state().t_ns > 0
     # the new estimator converges and the vehicle arms again
     c.recv("HEARTBEAT", 3.0)
     assert c.mode("GUIDED").result == M.MAV_RESULT_ACCEPTED

@@ -17,15 +17,15 @@ from harness.autopilot.mavlink.telemetry import SENSOR_GPS, SENSOR_GYRO, SENSOR_
 from harness.autopilot.mavlink.transport import DATAGRAM_MAX, GREET_NS, pack_frames
 from harness.autopilot.mavlink.version import CAPABILITIES
 from harness.core.endpoints import LISTEN_HELLO, LISTEN_HELLO_WALL
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 
 
 def test_heartbeat_on_wall_clock_while_sim_paused(gcs: Gcs, idle_rig: Rig) -> None:
-    t_before = idle_rig.ap.state().t_ns
+    t_before = idle_rig.ap.telemetry.state().t_ns
     beats = gcs.collect(2.6, {"HEARTBEAT"})
-    assert idle_rig.ap.state().t_ns == t_before, "the autopilot must not have stepped"
+    assert idle_rig.ap.telemetry.state().t_ns == t_before, "the autopilot must not have stepped"
     times = [t for t, _ in beats]
     assert len(times) >= 2, f"only {len(times)} heartbeats in 2.6 s of wall time"
     gaps = [(b - a) / 1e9 for a, b in itertools.pairwise(times)]
@@ -43,7 +43,7 @@ def test_streams_flow_while_paused_and_time_boot_ms_is_sim_time(gcs: Gcs, idle_r
     kinds = [m.get_type() for _, m in msgs]
     assert kinds.count("GLOBAL_POSITION_INT") >= 8 and kinds.count("ATTITUDE") >= 8
     assert 2 <= kinds.count("VFR_HUD") <= 6
-    sim_ms = idle_rig.ap.state().t_ns // 1_000_000
+    sim_ms = idle_rig.ap.telemetry.state().t_ns // 1_000_000
     assert {m.time_boot_ms for _, m in msgs if m.get_type() == "GLOBAL_POSITION_INT"} == {sim_ms}
     sys_status = next(m for _, m in msgs if m.get_type() == "SYS_STATUS")
     for bits in (sys_status.onboard_control_sensors_present, sys_status.onboard_control_sensors_health):
@@ -51,8 +51,17 @@ def test_streams_flow_while_paused_and_time_boot_ms_is_sim_time(gcs: Gcs, idle_r
     ext = next(m for _, m in msgs if m.get_type() == "EXTENDED_SYS_STATE")
     assert ext.landed_state == M.MAV_LANDED_STATE_ON_GROUND
     alt = gcs.recv("ALTITUDE", 1.0)
-    state = idle_rig.ap.state()
+    state = idle_rig.ap.telemetry.state()
     assert abs(alt.altitude_amsl - state.alt_amsl_m) < 1e-3 and abs(alt.altitude_relative - state.rel_alt_m) < 1e-3
+
+
+def test_do_gripper_over_udp_is_acked_and_kept(gcs: Gcs, idle_rig: Rig) -> None:
+    ack = gcs.command(mavlink2.MAV_CMD_DO_GRIPPER, 1, mavlink2.GRIPPER_ACTION_GRAB)
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED
+    assert idle_rig.ap.telemetry.state().grippers_grabbed == (1,)
+    ack = gcs.command(mavlink2.MAV_CMD_DO_GRIPPER, 1, mavlink2.GRIPPER_ACTION_RELEASE)
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED
+    assert idle_rig.ap.telemetry.state().grippers_grabbed == ()
 
 
 def test_autopilot_version_capabilities(gcs: Gcs, idle_rig: Rig) -> None:
@@ -108,7 +117,7 @@ def test_param_set_is_echoed_with_same_type_and_value(gcs: Gcs, idle_rig: Rig) -
     echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "SYS_HITL")
     assert echo.param_type == M.MAV_PARAM_TYPE_INT32
     assert struct.unpack("<i", struct.pack("<f", echo.param_value))[0] == -1
-    assert idle_rig.ap.get_param("SYS_HITL") == -1
+    assert idle_rig.ap.params.get("SYS_HITL") == -1
     # FLW_TGT_FA is a FLOAT, as in PX4 and as MAVSDK's follow_me.set_config sets it
     gcs.send(gcs.mav.param_set_encode(1, 1, b"FLW_TGT_FA", -120.0, M.MAV_PARAM_TYPE_REAL32))
     echo = gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "FLW_TGT_FA")
@@ -153,7 +162,7 @@ def test_retransmitted_command_is_answered_not_repeated(gcs: Gcs, idle_rig: Rig)
     idle_rig.step_s(0.1)
     hb = gcs.recv("HEARTBEAT", 1.5, lambda m: not m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
     assert hb.system_status == M.MAV_STATE_STANDBY
-    assert not idle_rig.ap.state().armed
+    assert not idle_rig.ap.telemetry.state().armed
 
 
 def test_set_message_interval_and_request_message(gcs: Gcs, idle_rig: Rig) -> None:
@@ -177,7 +186,7 @@ def test_ping_and_home_before_arming(gcs: Gcs, idle_rig: Rig) -> None:
     pong = gcs.recv("PING", cond=lambda m: m.seq == 42)
     assert pong.time_usec == 123456 and pong.target_system == 245
     # like PX4, home is set at the first good global position, before arming (MAVSDK waits for it)
-    state = idle_rig.ap.state()
+    state = idle_rig.ap.telemetry.state()
     assert state.home is not None and not state.armed
     assert gcs.command(512, M.MAVLINK_MSG_ID_HOME_POSITION).result == M.MAV_RESULT_ACCEPTED
     home = gcs.recv("HOME_POSITION")
@@ -195,7 +204,7 @@ def test_timesync_answers_on_the_time_base_of_the_telemetry(gcs: Gcs, idle_rig: 
     answer = gcs.recv("TIMESYNC", cond=lambda m: m.ts1 == 987_654_321)
     after = gcs.recv("ATTITUDE")
     assert att.time_boot_ms * 1_000_000 <= answer.tc1 <= after.time_boot_ms * 1_000_000 + 4_000_000
-    assert abs(answer.tc1 - idle_rig.ap.state().t_ns) < 1_000_000_000
+    assert abs(answer.tc1 - idle_rig.ap.telemetry.state().t_ns) < 1_000_000_000
 
 
 def test_gcs_port_and_api_port_both_serve_and_set_mode_message(gcs: Gcs) -> None:

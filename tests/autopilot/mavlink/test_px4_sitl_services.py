@@ -18,8 +18,8 @@ from harness.autopilot.mavlink.transport import PortsConfig
 from harness.autopilot.params import PARAM_DEFS
 from harness.autopilot.sitl import attach_mavlink
 from harness.core.clock import real_sleep
+from tests.autopilot.mavlink.conftest import Gcs
 from tests.autopilot.quadsim import QuadSim
-from tests.mavlink.conftest import Gcs
 
 _FTP = struct.Struct("<HBBBBBBI")
 
@@ -69,10 +69,10 @@ def test_calibrations_report_as_px4_and_store_results(gcs: Gcs, vehicle: _Vehicl
                 assert f"[cal] {side} orientation detected" in texts
                 assert f"[cal] {side} side done, rotate to a different side" in texts
     ap = vehicle.ap
-    assert ap.get_param("CAL_GYRO0_ID") == 1310988 and ap.get_param("CAL_ACC0_ID") == 1310988
-    assert ap.get_param("CAL_MAG0_ID") == 197388
-    assert abs(ap.get_param("CAL_GYRO0_XOFF")) < 0.05 and abs(ap.get_param("CAL_ACC0_ZOFF")) < 0.5
-    assert abs(ap.get_param("SENS_BOARD_X_OFF")) < 3 and abs(ap.get_param("SENS_BOARD_Y_OFF")) < 3
+    assert ap.params.get("CAL_GYRO0_ID") == 1310988 and ap.params.get("CAL_ACC0_ID") == 1310988
+    assert ap.params.get("CAL_MAG0_ID") == 197388
+    assert abs(ap.params.get("CAL_GYRO0_XOFF")) < 0.05 and abs(ap.params.get("CAL_ACC0_ZOFF")) < 0.5
+    assert abs(ap.params.get("SENS_BOARD_X_OFF")) < 3 and abs(ap.params.get("SENS_BOARD_Y_OFF")) < 3
     # cancel, unsupported kinds, refusal while armed
     assert gcs.command(241, 1).result == M.MAV_RESULT_ACCEPTED
     assert gcs.command(241, 0, 0, 0, 0, 0, 0, 0).result == M.MAV_RESULT_ACCEPTED
@@ -127,7 +127,7 @@ def test_gimbal_manager_discovery_control_and_attitude(gcs: Gcs, vehicle: _Vehic
     gcs.send(gcs.mav.command_long_encode(1, 1, 1001, 0, -3, -3, -3, -3, 0, 0, 1))  # release
     assert gcs.recv("COMMAND_ACK", cond=lambda m: m.command == 1001).result == M.MAV_RESULT_ACCEPTED
     assert gcs.recv("GIMBAL_MANAGER_STATUS").primary_control_sysid == 0
-    tlog = (vehicle.attached.server.api.flight_log.path.parent / "vehicle-0.tlog").read_bytes()  # type: ignore[union-attr]
+    tlog = (vehicle.ap.flight_log.path.parent / "vehicle-0.tlog").read_bytes()  # type: ignore[union-attr]
     assert bytes([0xFD]) in tlog and (285).to_bytes(3, "little") in tlog  # the attitude is in the tlog
 
 
@@ -239,7 +239,7 @@ def test_shell_runs_commands_with_the_nsh_prompt(gcs: Gcs, vehicle: _Vehicle) ->
     assert "NuttShell (NSH)" in out and out.endswith("nsh> ")
     out = _shell(gcs, "param set MIS_TAKEOFF_ALT 5\n")
     assert "MIS_TAKEOFF_ALT: curr: 3.0000 -> new: 5.0000" in out and out.endswith("nsh> ")
-    assert vehicle.ap.get_param("MIS_TAKEOFF_ALT") == 5.0
+    assert vehicle.ap.params.get("MIS_TAKEOFF_ALT") == 5.0
     assert "x + MIS_TAKEOFF_ALT" in _shell(gcs, "param show MIS_TAKEOFF*\n")
     assert "ERROR: Parameter NOPE not found." in _shell(gcs, "param set NOPE 1\n")
     ver = _shell(gcs, "ver all\n")
@@ -247,16 +247,16 @@ def test_shell_runs_commands_with_the_nsh_prompt(gcs: Gcs, vehicle: _Vehicle) ->
     assert "q: [" in _shell(gcs, "listener vehicle_attitude\n")
     assert "nsh: frobnicate: command not found" in _shell(gcs, "frobnicate\n")
     _shell(gcs, "commander arm\n", vehicle)
-    assert vehicle.ap.state().armed
+    assert vehicle.ap.telemetry.state().armed
     _shell(gcs, "commander takeoff\n", vehicle)
     vehicle.step_s(6.0)
-    assert vehicle.ap.state().rel_alt_m == pytest.approx(5.0, abs=0.7)
+    assert vehicle.ap.telemetry.state().rel_alt_m == pytest.approx(5.0, abs=0.7)
     assert "armed: True" in _shell(gcs, "commander status\n")
     _shell(gcs, "commander land\n", vehicle)
 
 
 def test_reboot_restarts_the_stack_with_the_saved_parameters(gcs: Gcs, vehicle: _Vehicle, tmp_path: Path) -> None:
-    assert vehicle.ap.state().home is not None
+    assert vehicle.ap.telemetry.state().home is not None
     gcs.send(gcs.mav.param_set_encode(1, 1, b"MPC_XY_CRUISE", 7.0, M.MAV_PARAM_TYPE_REAL32))
     gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "MPC_XY_CRUISE")
     saved = tmp_path / "params/vehicle-0.json"
@@ -264,11 +264,11 @@ def test_reboot_restarts_the_stack_with_the_saved_parameters(gcs: Gcs, vehicle: 
     assert values["MPC_XY_CRUISE"] == 7.0
     saved.write_text(json.dumps(values | {"MPC_XY_CRUISE": 9.0}))  # as a ground station would over MAVFTP
     assert gcs.command(246, 1).result == M.MAV_RESULT_ACCEPTED
-    assert vehicle.ap.get_param("MPC_XY_CRUISE") == 9.0 and vehicle.ap.get_param("MIS_TAKEOFF_ALT") == 3.0
-    assert vehicle.ap.state().home is None
+    assert vehicle.ap.params.get("MPC_XY_CRUISE") == 9.0 and vehicle.ap.params.get("MIS_TAKEOFF_ALT") == 3.0
+    assert vehicle.ap.telemetry.state().home is None
     gcs.recv("HEARTBEAT")
     vehicle.step_s(12.0)
-    assert vehicle.ap.state().home is not None and vehicle.ap.arming_check() == ""
+    assert vehicle.ap.telemetry.state().home is not None and vehicle.ap.telemetry.arming_check() == ""
     assert gcs.command(246, 3).result == M.MAV_RESULT_UNSUPPORTED
     assert gcs.command(400, 1).result == M.MAV_RESULT_ACCEPTED
     vehicle.step_s(0.1)
@@ -285,7 +285,7 @@ def test_every_px4_parameter_reads_and_sets(gcs: Gcs, vehicle: _Vehicle) -> None
         gcs.send(gcs.mav.param_set_encode(1, 1, name, raw, ptype))
         echo = gcs.recv("PARAM_VALUE", cond=lambda m, n=name: m.param_id == n.decode())
         assert echo.param_count == len(PARAM_DEFS) and echo.param_type == ptype
-        assert vehicle.ap.get_param(name.decode()) == pytest.approx(value)
+        assert vehicle.ap.params.get(name.decode()) == pytest.approx(value)
     # out of range: refused, the echo keeps the old value
     gcs.send(gcs.mav.param_set_encode(1, 1, b"LNDMC_Z_VEL_MAX", -1.0, M.MAV_PARAM_TYPE_REAL32))
     assert gcs.recv("PARAM_VALUE", cond=lambda m: m.param_id == "LNDMC_Z_VEL_MAX").param_value == pytest.approx(0.4)

@@ -13,6 +13,7 @@ from harness import cli
 from harness.record import sink, viewer
 from harness.record.links import LinkTracker, ratio_color
 from harness.record.sample import VehicleSample
+from tests.helpers import wait_until
 
 SAMPLE = VehicleSample(
     0, 0, (0.0, 0.0, -1.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 47.0, 8.0, 401.0, (0.0,) * 4, False, False
@@ -125,9 +126,7 @@ def test_a_run_stopped_while_the_view_opens_does_not_wait_for_it(tmp_path: Path)
     assert time.monotonic() - t0 < 1.0
     assert (tmp_path / "world.mcap").stat().st_size > 0
     release.set()
-    deadline = time.monotonic() + 10
-    while not opening.done() and time.monotonic() < deadline:
-        time.sleep(0.01)
+    wait_until(opening.done, 10.0, "the view to give up opening", poll_s=0.01)
     assert closed == [LateView.path] and not LateView.path.exists()
 
 

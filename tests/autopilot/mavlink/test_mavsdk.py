@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from harness.core.clock import real_monotonic_ns, real_sleep
-from tests.mavlink.conftest import Rig
+from tests.autopilot.mavlink.conftest import Rig
 
 mavsdk = pytest.importorskip("mavsdk")
 from mavsdk.plugins.action import Action  # noqa: E402

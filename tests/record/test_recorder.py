@@ -13,9 +13,9 @@ from harness.autopilot.api import MavCmd, MavFrame, MissionItem, MissionKind
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.core.geo import WGS84_A_M, flat_point
 from harness.record.links import ratio_color
-from harness.record.rrd import to_ned
 from harness.record.sample import VehicleSample
-from tests.view.test_rrd import read_rrd
+from harness.record.scene import to_ned
+from tests.record.test_rrd import read_rrd
 
 pytest.importorskip("rerun", reason="the view extra is not installed (pip install 'uav-harness[view]')")
 
@@ -45,7 +45,7 @@ def test_links_drops_mission_and_geofence_are_recorded(tmp_path: Path) -> None:
         )
         for k, (la, lo) in enumerate(wps)
     ]
-    assert ap.upload_mission(mission).ok
+    assert ap.mission.upload(mission).ok
     corners = [latlon(n, e) for n, e in ((-40, -40), (40, -40), (40, 40), (-40, 40))]
     fence = [
         MissionItem(
@@ -59,7 +59,7 @@ def test_links_drops_mission_and_geofence_are_recorded(tmp_path: Path) -> None:
         )
         for k, (la, lo) in enumerate(corners)
     ]
-    assert ap.upload_mission(fence, MissionKind.FENCE).ok
+    assert ap.mission.upload(fence, MissionKind.FENCE).ok
 
     rec = RrdRecorder(tmp_path / "world.rrd", 3, ORIGIN, events_path=events, min_wall_s=0.0)
     rec.attach_autopilots({0: ap})

@@ -10,6 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink2
 
+from harness.autopilot.action import Actions
 from harness.autopilot.api import CommandResult, FlightMode, OffboardFrame, Severity, VehicleState
 from harness.autopilot.autopilot import Autopilot
 from harness.autopilot.mavlink.codec import Codec
@@ -153,8 +154,8 @@ def test_peers_are_forgotten_after_ten_silent_seconds() -> None:
         link.close()
 
 
-class _CountingAutopilot(Autopilot):
-    """The real autopilot, counting how often arm() runs."""
+class _CountingActions(Actions):
+    """The real action service, counting how often arm() runs."""
 
     arms = 0
 
@@ -164,19 +165,20 @@ class _CountingAutopilot(Autopilot):
 
 
 def test_retransmission_is_not_executed_twice() -> None:
-    ap = _CountingAutopilot()
-    svc = CommandService(ap, lambda _i: None, lambda _i, _v: True)
+    real = Autopilot()
+    counting = real.action = _CountingActions(real, real.offboard, real.manual_control, real.follow_me)
+    svc = CommandService(real, lambda _i: None, lambda _i, _v: True)
     arm = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     sender = ("gcs",)
     first = svc.handle(CommandIn(400, arm), sender, 0)
     assert first.result.result.name == "DENIED"  # no sensor data yet: refused with a reason
     assert "Arming denied" in first.result.reason
     again = svc.handle(CommandIn(400, arm, confirmation=1), sender, 400_000_000)
-    assert again.replayed and again.result == first.result and ap.arms == 1
+    assert again.replayed and again.result == first.result and counting.arms == 1
     fresh = svc.handle(CommandIn(400, arm, confirmation=0), sender, 500_000_000)
-    assert not fresh.replayed and ap.arms == 2
+    assert not fresh.replayed and counting.arms == 2
     late = svc.handle(CommandIn(400, arm, confirmation=2), sender, 5_000_000_000)
-    assert not late.replayed and ap.arms == 3
+    assert not late.replayed and counting.arms == 3
     assert svc.handle(CommandIn(31000, arm), sender, 0).result.result.name == "UNSUPPORTED"
 
 
@@ -225,20 +227,20 @@ def test_data_link_loss_acts_once_after_the_gcs_falls_silent() -> None:
     ap = Autopilot()
     sim = QuadSim(np.random.default_rng(2))
     fly(ap, sim, 3.0)
-    assert ap.arm().ok and ap.takeoff(3.0).ok
+    assert ap.action.arm().ok and ap.action.takeoff(3.0).ok
     fly(ap, sim, 6.0)
     mon = DataLinkMonitor(ap)
-    s = ap.state()
+    s = ap.telemetry.state()
     assert s.in_air
     assert mon.check(s, 100 * 10**9) == "", "never heard a GCS: nothing lost"
     mon.heard_gcs(0)
     assert mon.check(s, 11 * 10**9) == "", "NAV_DLL_ACT 0: disabled"
-    assert ap.set_param("NAV_DLL_ACT", 2).ok
+    assert ap.params.set("NAV_DLL_ACT", 2).ok
     assert mon.check(s, 9 * 10**9) == ""
     assert mon.check(s, 11 * 10**9) == "Data link lost for 11 s: returning"
     assert mon.check(s, 12 * 10**9) == "", "once"
     fly(ap, sim, 0.1)
-    assert ap.state().mode is FlightMode.RTL
+    assert ap.telemetry.state().mode is FlightMode.RTL
 
 
 def test_parameters_survive_a_vehicle_restart_in_the_same_run_dir(tmp_path: object) -> None:

@@ -9,7 +9,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import FlightMode, LandedState
 from harness.core.clock import real_monotonic_ns
-from tests.mavlink.conftest import Gcs, Rig
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 
 M = mavlink2
 ARMED = M.MAV_MODE_FLAG_SAFETY_ARMED
@@ -45,10 +45,10 @@ def test_takeoff_uses_mis_takeoff_alt_then_land_and_auto_disarm(gcs: Gcs, flying
 
 def test_time_boot_ms_never_goes_back_and_streams_follow_the_faster_clock(gcs: Gcs, flying_rig: Rig) -> None:
     t0 = real_monotonic_ns()
-    sim0 = flying_rig.ap.state().t_ns
+    sim0 = flying_rig.ap.telemetry.state().t_ns
     msgs = [m for _, m in gcs.collect(2.0, {"GLOBAL_POSITION_INT"})]
     wall_s = (real_monotonic_ns() - t0) / 1e9
-    speed = (flying_rig.ap.state().t_ns - sim0) / 1e9 / wall_s
+    speed = (flying_rig.ap.telemetry.state().t_ns - sim0) / 1e9 / wall_s
     stamps = [m.time_boot_ms for m in msgs]
     assert stamps == sorted(stamps)
     rate_hz = len(msgs) / wall_s
@@ -58,7 +58,7 @@ def test_time_boot_ms_never_goes_back_and_streams_follow_the_faster_clock(gcs: G
 
 def test_reposition_command_int_and_orbit(gcs: Gcs, flying_rig: Rig) -> None:
     _take_off(gcs, flying_rig)
-    state = flying_rig.ap.state()
+    state = flying_rig.ap.telemetry.state()
     assert state.home is not None
     lat = state.home.lat_deg + 10.0 / 111_195.0
     ack = gcs.command_int(
@@ -83,13 +83,13 @@ def test_reposition_command_int_and_orbit(gcs: Gcs, flying_rig: Rig) -> None:
     int32_min = -(2**31)
     ack = gcs.command_int(M.MAV_CMD_DO_ORBIT, 3, 5.0, 2.0, 0, math.nan, int32_min, int32_min, math.nan)
     assert ack.result == M.MAV_RESULT_ACCEPTED
-    t_orbit = flying_rig.ap.state().t_ns
+    t_orbit = flying_rig.ap.telemetry.state().t_ns
     deadline = real_monotonic_ns() + 8_000_000_000
-    while real_monotonic_ns() < deadline and flying_rig.ap.state().t_ns - t_orbit < 15_000_000_000:
+    while real_monotonic_ns() < deadline and flying_rig.ap.telemetry.state().t_ns - t_orbit < 15_000_000_000:
         gcs.collect(0.2)  # 15 s of sim time in orbit (at most 8 s of wall time)
     n, e, _ = flying_rig.sim.pos
     assert abs(math.hypot(n - 10.0, e) - 5.0) < 1.5, "orbits 5 m around where it was"
-    assert flying_rig.ap.state().mode is FlightMode.ORBIT
+    assert flying_rig.ap.telemetry.state().mode is FlightMode.ORBIT
 
 
 def test_offboard_needs_setpoints_and_falls_back_when_they_stop(gcs: Gcs, flying_rig: Rig) -> None:
@@ -123,14 +123,14 @@ def test_offboard_needs_setpoints_and_falls_back_when_they_stop(gcs: Gcs, flying
     # setpoints stop: the autopilot holds (COM_OBL_RC_ACT 5) within its wall-clock loss timeout
     hb = gcs.recv("HEARTBEAT", 4.0, lambda m: _mode(m) is not FlightMode.OFFBOARD)
     assert _mode(hb) is FlightMode.HOLD
-    assert flying_rig.ap.state().landed_state == LandedState.IN_AIR
+    assert flying_rig.ap.telemetry.state().landed_state == LandedState.IN_AIR
 
 
 def test_a_takeoff_altitude_below_the_minimum_is_raised_to_it_as_px4_does(gcs: Gcs, flying_rig: Rig) -> None:
     """MAVProxy's ``takeoff 10`` sends 10 m AMSL, below home here: PX4 takes off to home + MIS_TAKEOFF_ALT and
     says so ("Using minimum takeoff altitude"), it does not refuse."""
     assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0).result == M.MAV_RESULT_ACCEPTED
-    home = flying_rig.ap.state().home
+    home = flying_rig.ap.telemetry.state().home
     assert home is not None
     ack = gcs.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, home.alt_amsl_m - 5.0)
     assert ack.result == M.MAV_RESULT_ACCEPTED
