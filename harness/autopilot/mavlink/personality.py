@@ -69,6 +69,9 @@ class Px4Dialect:
     def tick(self, state: VehicleState, now: int) -> list[Out]:
         return self.px4.tick(state, now)
 
+    def close(self) -> None:
+        self.px4.close()
+
 
 def _ardupilot(api: System, sysid: int) -> Dialect:
     from harness.autopilot.mavlink.ardupilot.dialect import CopterDialect

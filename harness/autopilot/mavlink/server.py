@@ -226,6 +226,7 @@ class MavlinkServer:
                 hub.remove(self)
         for link in self.links:
             link.close()
+        self.dialect.close()  # after the hub let go of this server: nothing else touches the dialect now
 
     def close(self) -> None:
         """Same as ``stop()`` (the autopilot host's attach hook closes what it attached)."""

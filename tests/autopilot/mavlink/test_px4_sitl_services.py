@@ -5,6 +5,7 @@ downloaded byte for byte), the MAVLink shell, reboot, and the full PX4 parameter
 from __future__ import annotations
 
 import json
+import os
 import struct
 from pathlib import Path
 
@@ -220,6 +221,30 @@ def test_mavftp_lists_walks_downloads_writes(gcs: Gcs, vehicle: _Vehicle, tmp_pa
     assert h[2] == 129 and data[0] == 9
     assert ftp.one(16, b"/\0")[1][0] == 7
     assert ftp.one(4, b"/nope\0")[1][0] == 10
+
+
+def _fds_open_on(path: Path) -> list[Path]:
+    found = []
+    for fd in Path("/proc/self/fd").iterdir():
+        try:
+            if os.readlink(fd) == str(path):
+                found.append(fd)
+        except OSError:  # closed meanwhile (the directory's own fd, another thread's)
+            continue
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs /proc to see open files")
+def test_stopping_a_vehicle_closes_the_files_mavftp_sessions_left_open(
+    gcs: Gcs, vehicle: _Vehicle, tmp_path: Path
+) -> None:
+    """A ground station that vanishes mid-transfer never sends TERMINATE_SESSION: the vehicle's stop closes the file."""
+    ftp = _Ftp(gcs)
+    assert ftp.one(6, b"/etc/left-open.txt\0")[0][2] == 128  # CREATE_FILE: a write session, never terminated
+    target = (tmp_path / "fs/vehicle-0/etc/left-open.txt").resolve()
+    assert len(_fds_open_on(target)) == 1
+    vehicle.attached.close()
+    assert _fds_open_on(target) == []
 
 
 def _shell(gcs: Gcs, line: str, vehicle: _Vehicle | None = None) -> str:

@@ -555,6 +555,9 @@ class CopterDialect:
             self._host.say(Severity.WARNING, r.reason, now)
 
     # ------------------------------------------------------------------ periodic
+    def close(self) -> None:
+        """Nothing held open: ArduCopter's services here keep no files."""
+
     def tick(self, state: VehicleState, now: int) -> list[Out]:
         if self._boot_texts and self._host is not None:
             for text in self._boot_texts:
