@@ -1,6 +1,7 @@
 """A DroneKit script that answers every answer at once, in the style of DroneKit's performance_test.py: a
 COMMAND_ACK listener sends the next MAV_CMD_DO_SET_ROI the moment an ACK arrives, for 10 s of sim time, and
-prints how many round trips it made and the shortest and longest interval between two ACKs."""
+prints how many round trips it made, the shortest and longest interval between two ACKs, and the most ACKs that
+arrived at one instant of sim time (within one phase the clock stands still)."""
 
 import itertools
 import sys
@@ -30,4 +31,6 @@ for _ in range(10):
     time.sleep(1)
 vehicle.close()
 gaps = [b - a for a, b in itertools.pairwise(stamps)]
+instants = [len(list(same)) for _, same in itertools.groupby(stamps)]
 print(f"acks {len(stamps)} in {time.monotonic() - start:.3f} s, gaps {min(gaps):.3f} to {max(gaps):.3f} s")
+print(f"instants {len(instants)}, at most {max(instants)} acks at one instant")
