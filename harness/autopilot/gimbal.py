@@ -105,7 +105,8 @@ class GimbalDevice:
         g = self.g
         if not self.used:
             self.used = True
-            g.t_ns = self.ap.core.t_ns
+            t_ns = self.ap.core.t_ns
+            g.t_ns = t_ns if t_ns >= 0 else None  # before the first step: it moves from the first step on
             self.report = (g.pitch_deg, g.yaw_deg)
         return g
 

@@ -50,8 +50,9 @@ import msgspec
 
 from harness.core.geo import Vec3
 
-PROTOCOL_VERSION: Final = 3
-"""Bumped on every incompatible change of a message below (3: END-TICK-AC carries ``ticks``)."""
+PROTOCOL_VERSION: Final = 4
+"""Bumped on every incompatible change of a message below (3: END-TICK-AC carries ``ticks``; 4: its status is
+64 bits, with the gimbal's attitude, and each tick record 145 bytes)."""
 
 MAX_FRAME_BYTES: Final = 16 * 1024 * 1024
 """Frames larger than this are refused as malformed (a garbage length prefix must not allocate GBs)."""
