@@ -16,10 +16,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from harness.autopilot.api import CommandResult, GimbalAttitude
-from harness.autopilot.estimator import Estimator
-from harness.autopilot.supervisor import Commander
+
+if TYPE_CHECKING:  # not at run time: the MAVLink package imports this module before a process chooses whether
+    # to compile the estimator's kernels (``harness.core.jit.prefer``), which importing it would decide
+    from harness.autopilot.estimator import Estimator
+    from harness.autopilot.supervisor import Commander
 
 PITCH_MIN, PITCH_MAX = -90.0, 30.0
 YAW_MIN, YAW_MAX = -180.0, 180.0
