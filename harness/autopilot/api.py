@@ -115,10 +115,25 @@ class LandedState(enum.IntEnum):
     LANDING = 4
 
 
-TickStatus = tuple[bool, int, int, int]
-"""What the autopilot reports with each tick's motor commands (END-TICK-AC ``status``, for recording):
-(armed, MAV_LANDED_STATE — ON_GROUND while disarmed —, PX4 main mode, sub mode). A plain tuple: it is made
-for every vehicle on every tick."""
+ModeStatus = tuple[bool, int, int, int]
+"""(armed, MAV_LANDED_STATE — ON_GROUND while disarmed —, PX4 main mode, sub mode): what rings the bell."""
+
+TickStatus = tuple[bool, int, int, int, tuple[float, float] | None]
+"""What the autopilot reports with each tick's motor commands (END-TICK-AC ``status``, for recording): the
+:data:`ModeStatus`, then the gimbal's (pitch, yaw relative to the heading) in degrees, None while no gimbal was
+used. A plain tuple: it is made for every vehicle on every tick."""
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalAttitude:
+    """A gimbal's attitude (``harness.autopilot.gimbal``): pitch earth-stabilised, yaw relative to the heading."""
+
+    pitch_deg: float
+    yaw_deg: float
+    pitch_rate_deg_s: float
+    yaw_rate_deg_s: float
+    yaw_lock: bool
+    """The yaw setpoint is held in the earth frame."""
 
 
 class Failsafe(enum.StrEnum):

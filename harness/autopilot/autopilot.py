@@ -6,7 +6,7 @@ failsafes, home), and its services as MAVSDK's ``System`` composes plugins (``ha
     offboard   ``offboard.OffboardInput``       failure         ``failures.FailureInjector``
     params     ``params.Params``                manual_control  ``manual.ManualControl``
     log_files  ``flightlog.FlightLogFiles``     follow_me       ``follow.FollowTarget``
-    gripper    ``gripper.Grippers``
+    gripper    ``gripper.Grippers``             gimbal          ``gimbal.GimbalDevice``
 
 ``step(frame)`` runs once per tick in lockstep and returns the four motor commands; the services may be
 called from any thread (the MAVLink side calls them on the wall clock). One lock (``lock``) serialises them:
@@ -27,6 +27,7 @@ from harness.autopilot.api import (
     GeoPoint,
     LandedState,
     MissionReached,
+    ModeStatus,
     Severity,
     StatusText,
     TickStatus,
@@ -35,6 +36,7 @@ from harness.autopilot.failures import FailureInjector
 from harness.autopilot.flight import FlightCore
 from harness.autopilot.flightlog import FlightLog, FlightLogFiles
 from harness.autopilot.follow import FollowTarget
+from harness.autopilot.gimbal import GimbalDevice
 from harness.autopilot.gripper import Grippers
 from harness.autopilot.manual import ManualControl
 from harness.autopilot.mission import MissionPlans
@@ -98,6 +100,7 @@ class Autopilot:
         self.action = Actions(self, self.offboard, self.manual_control, self.follow_me)
         self.mission = MissionPlans(self, self.action)
         self.gripper = Grippers(self)
+        self.gimbal = GimbalDevice(self)
         self.telemetry = TelemetryFeed(self, self.failure, self.gripper)
         self.bell = TelemetryBell()
         self.log_files = FlightLogFiles(self)
@@ -116,6 +119,9 @@ class Autopilot:
             failure = self.failure
             self.manual_control.pre_step()
             motors = c.motors = failure.motors(c.step(failure.sensors(frame)))
+            gimbal = self.gimbal
+            if gimbal.used:
+                gimbal.step(c.t_ns, c.est)
             if self.flight_log is not None:
                 self.flight_log.record(self)
             if c.t_ns >= self._next_super_ns:
@@ -137,20 +143,26 @@ class Autopilot:
             ring = None
             bell = self.bell
             if bell.armed:
-                ring = bell.due(c.t_ns, self.tick_status(), bool(tel.texts or tel.reached))
+                ring = bell.due(c.t_ns, self._mode_status(), bool(tel.texts or tel.reached))
         if ring is not None:  # outside the lock: the MAVLink side reads the state through the locked services
             ring()
         return motors
 
     def tick_status(self) -> TickStatus:
-        """Armed, landed state and PX4 mode, for END-TICK-AC (packed there by ``protocol.pack_status``)."""
+        """Armed, landed state, PX4 mode and the gimbal's attitude (None while unused), for END-TICK-AC
+        (packed there by ``protocol.pack_status``)."""
         c = self.core
         mode = c.mode
         if mode is not self._numbered_mode:  # (an enum's hash is a Python call: looked up on a change only)
             self._numbered_mode = mode
             self._mode_numbers = _MODE_NUMBERS[mode]
         main, sub = self._mode_numbers
-        return (c.armed, int(c.landed_state) if c.armed else 1, main, sub)
+        return (c.armed, int(c.landed_state) if c.armed else 1, main, sub, self.gimbal.report)
+
+    def _mode_status(self) -> ModeStatus:
+        """What rings the bell on a change: the tick's status without the gimbal (a moving gimbal is no news)."""
+        armed, landed, main, sub, _ = self.tick_status()
+        return (armed, landed, main, sub)
 
     # ------------------------------------------------------------------ the commander (services and supervisor, under the lock)
     def say(self, severity: Severity, text: str) -> None:

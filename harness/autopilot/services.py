@@ -9,6 +9,7 @@
     system.manual_control   MANUAL_CONTROL sticks                       } the autopilot has
     system.follow_me   FOLLOW_TARGET positions                          } no such capability,
     system.gripper     payload grippers (MAV_CMD_DO_GRIPPER)            } never probed for
+    system.gimbal      a 2-axis camera gimbal (gimbal manager v2)       }
     system.log_files   the flight logs offered over MAVLink             }
     system.bell        the stepping thread's call to the MAVLink side   }
 
@@ -33,6 +34,7 @@ from harness.autopilot.api import (
     CommandResult,
     FlightMode,
     GeoPoint,
+    GimbalAttitude,
     MissionItem,
     MissionKind,
     MissionReached,
@@ -132,6 +134,16 @@ class Gripper(Protocol):
     def release(self, instance: int = 1) -> CommandResult: ...
 
 
+class Gimbal(Protocol):
+    """A camera gimbal (MAVSDK ``gimbal``): pitch earth-stabilised, yaw relative to the vehicle's heading
+    (from north with ``yaw_lock``); degrees and degrees per second."""
+
+    def set_angles(self, pitch_deg: float, yaw_deg: float, yaw_lock: bool = False) -> CommandResult: ...
+    def set_rates(self, pitch_rate_deg_s: float, yaw_rate_deg_s: float, yaw_lock: bool = False) -> CommandResult: ...
+    def point_at(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> CommandResult: ...
+    def attitude(self) -> GimbalAttitude: ...
+
+
 class LogFiles(Protocol):
     """The flight logs offered over MAVLink (MAVSDK ``log_files``)."""
 
@@ -174,6 +186,8 @@ class System(Protocol):
     def follow_me(self) -> FollowMe | None: ...
     @property
     def gripper(self) -> Gripper | None: ...
+    @property
+    def gimbal(self) -> Gimbal | None: ...
     @property
     def log_files(self) -> LogFiles | None: ...
     @property

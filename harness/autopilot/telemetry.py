@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 
-from harness.autopilot.api import MissionReached, StatusText, TickStatus, VehicleState
+from harness.autopilot.api import MissionReached, ModeStatus, StatusText, VehicleState
 from harness.autopilot.failures import FailureInjector
 from harness.autopilot.gripper import Grippers
 from harness.autopilot.snapshot import build_state
@@ -74,7 +74,7 @@ class TelemetryBell:
         self._ring: Callable[[], None] | None = None
         self.armed = False
         self._at_ns = 0
-        self._rung_status: TickStatus | None = None
+        self._rung_status: ModeStatus | None = None
 
     def attach(self, ring: Callable[[], None]) -> None:
         self._ring = ring
@@ -86,7 +86,7 @@ class TelemetryBell:
             self._at_ns = t_ns
             self.armed = True
 
-    def due(self, t_ns: int, status: TickStatus, news: bool) -> Callable[[], None] | None:
+    def due(self, t_ns: int, status: ModeStatus, news: bool) -> Callable[[], None] | None:
         """After a step (under the lock, only while :attr:`armed`): the call to make outside the lock, if it rings."""
         if t_ns >= self._at_ns or news or status != self._rung_status:
             self.armed = False

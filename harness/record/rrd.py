@@ -20,6 +20,9 @@ Entities (``world`` is NED, x north, y east, z down, as ``ViewCoordinates.FRD``)
 
 - ``world/vehicle/<i>``: the body transform (true position and attitude); under it a quad-X drawn at
   ``BODY_SCALE`` times its size so it shows in a swarm-wide view, labelled with name and mode;
+- ``world/gimbal/<i>``: from the first time vehicle ``i``'s gimbal was used, the camera's transform (at the
+  vehicle, with the gimbal's pitch and its yaw composed with the vehicle's true heading: ``GimbalSample``);
+  under it ``camera`` (a frustum) and ``axis`` (the optical axis, an arrow);
 - ``world/trails``, ``world/velocity``, ``world/markers``: the last ``trail_s`` of every vehicle's path; its
   velocity vector; a dot of fixed screen size on it (visible at any zoom);
 - ``world/spawn``, ``world/home``, ``world/mission/<i>``, ``world/geofence/<i>``: spawn and home points,
@@ -43,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from harness.core.clock import NS_PER_S, WALL, Clock
-from harness.record.sample import VehicleSample, WorldEvent
+from harness.record.sample import VehicleSample, WorldEvent, gimbal_of
 from harness.record.scene import (
     BODY_SCALE,
     MODE_DT_S,
@@ -60,8 +63,10 @@ from harness.record.scene import (
     Spawn,
     Trails,
     Update,
+    camera_frustum,
     vehicle_color,
 )
+from harness.wire.protocol import STATUS_GIMBAL
 
 if TYPE_CHECKING:
     from harness.autopilot.services import System
@@ -124,6 +129,9 @@ class RrdRecorder:
         """Label changes sampled since the last batch."""
         self._status: dict[int, int] = {}
         """The last END-TICK-AC status of each vehicle whose autopilot is not in this process (its label)."""
+        self._gimbals: dict[int, tuple[list[float], list[Any], list[Any]]] = {}
+        """Each vehicle's gimbal samples of this batch (times, positions, camera quaternions xyzw)."""
+        self._gimbal_shown: set[int] = set()
         self._events_file: Any = None
         self._events_rest = b""
         self._static()
@@ -135,6 +143,14 @@ class RrdRecorder:
         self._buf.add(s.t_ns / NS_PER_S, s.vehicle, (s.pos_ned_m, (x, y, z, w), s.vel_ned_m_s, (s.lat_deg, s.lon_deg)))
         if s.status and s.vehicle not in self._aps:
             self._status[s.vehicle] = s.status
+        if s.status & STATUS_GIMBAL:
+            g = gimbal_of(s)
+            if g is not None:
+                t, positions, quats = self._gimbals.setdefault(s.vehicle, ([], [], []))
+                gw, gx, gy, gz = g.quat_wxyz
+                t.append(s.t_ns / NS_PER_S)
+                positions.append(s.pos_ned_m)
+                quats.append((gx, gy, gz, gw))
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
         t_s = t_ns / NS_PER_S
@@ -230,6 +246,8 @@ class RrdRecorder:
         b = self._buf
         if b.t_s:
             self._send_vehicles(b)
+        if self._gimbals:
+            self._send_gimbals()
         if b.tick_t_s:
             rr = self._rr
             self._rec.send_columns(
@@ -327,6 +345,26 @@ class RrdRecorder:
         self._read_events()  # trails (a point per TRAIL_DT_S) and radio links: a state every view_step_s of sim
         for update in self._scene.batch(b.t_s, pos, self._labels):
             self._write(update)
+
+    def _send_gimbals(self) -> None:
+        rr = self._rr
+        rec = self._rec
+        for i, (t, positions, quats) in sorted(self._gimbals.items()):
+            base = f"world/gimbal/{i}"
+            if i not in self._gimbal_shown:  # drawn from its first sample on: no camera at the origin before
+                self._gimbal_shown.add(i)
+                rec.set_time("sim_time", duration=t[0])
+                color = vehicle_color(i)
+                rec.log(f"{base}/camera", rr.LineStrips3D(camera_frustum(), colors=[color], radii=0.03))
+                rec.log(f"{base}/axis", rr.Arrows3D(vectors=[(1.5 * BODY_SCALE, 0.0, 0.0)], colors=[color], radii=0.03))
+            rec.send_columns(
+                base,
+                indexes=[rr.TimeColumn("sim_time", duration=np.asarray(t))],
+                columns=rr.Transform3D.columns(
+                    translation=np.asarray(positions, dtype=np.float64), quaternion=np.asarray(quats, dtype=np.float64)
+                ),
+            )
+        self._gimbals.clear()
 
     def _read_events(self) -> None:
         if self.events_path is None:

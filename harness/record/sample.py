@@ -4,10 +4,12 @@ events (``WorldSink.event``)."""
 from __future__ import annotations
 
 import enum
+import math
 
 import msgspec
 
-from harness.core.geo import Quat, Vec3
+from harness.core.geo import Quat, Vec3, quat_from_euler
+from harness.wire.protocol import unpack_gimbal
 
 
 class VehicleSample(msgspec.Struct, frozen=True):
@@ -26,7 +28,34 @@ class VehicleSample(msgspec.Struct, frozen=True):
     crashed: bool
     status: int = 0
     """The autopilot's END-TICK-AC status (``harness.wire.protocol.pack_status``: armed, landed state, PX4
-    mode), so that a vehicle flown in another process still has its mode in the view."""
+    mode, the gimbal's attitude once one was used), so that a vehicle flown in another process still has its
+    mode and gimbal in the recordings."""
+
+
+class GimbalSample(msgspec.Struct, frozen=True):
+    """A vehicle's gimbal at a recorded tick, as PX4's gimbal device reports it (pitch earth-stabilised,
+    yaw in the vehicle frame, roll held level) and composed with the vehicle's true heading."""
+
+    pitch_deg: float
+    yaw_deg: float
+    """Relative to the vehicle's heading (GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME)."""
+    heading_deg: float
+    """The camera's yaw from north: the vehicle's true heading plus ``yaw_deg``, in [-180, 180)."""
+    quat_wxyz: Quat
+    """The camera's attitude in the world NED frame (x along the optical axis): yaw ``heading_deg``, then
+    pitch ``pitch_deg``, roll 0."""
+
+
+def gimbal_of(s: VehicleSample) -> GimbalSample | None:
+    """The gimbal ``s.status`` carries (None for a vehicle whose gimbal nobody used, or without one)."""
+    att = unpack_gimbal(s.status)
+    if att is None:
+        return None
+    pitch, yaw = att
+    w, x, y, z = s.quat_wxyz
+    body_yaw = math.degrees(math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+    heading = (body_yaw + yaw + 180.0) % 360.0 - 180.0
+    return GimbalSample(pitch, yaw, heading, quat_from_euler(0.0, math.radians(pitch), math.radians(heading)))
 
 
 class WorldEvent(enum.StrEnum):

@@ -45,6 +45,24 @@ PALETTE: tuple[tuple[int, int, int], ...] = (
 
 Color = tuple[int, ...]
 
+CAMERA_HFOV_DEG = 60.0
+CAMERA_ASPECT = 4.0 / 3.0
+"""The frustum drawn for a vehicle's gimbal camera (a drawing: the simulated gimbal carries no camera)."""
+
+
+def camera_frustum(depth_m: float = 0.6 * BODY_SCALE) -> list[list[Vec3]]:
+    """A camera's frustum in its own frame (x along the optical axis, y right, z down, as the world's NED):
+    the four edges from the lens, then the closed far rectangle at ``depth_m``."""
+    half_w = depth_m * math.tan(math.radians(CAMERA_HFOV_DEG) / 2)
+    half_h = half_w / CAMERA_ASPECT
+    corners: list[Vec3] = [
+        (depth_m, -half_w, -half_h),
+        (depth_m, half_w, -half_h),
+        (depth_m, half_w, half_h),
+        (depth_m, -half_w, half_h),
+    ]
+    return [*([(0.0, 0.0, 0.0), c] for c in corners), [*corners, corners[0]]]
+
 
 def vehicle_color(i: int) -> tuple[int, int, int]:
     return PALETTE[i % len(PALETTE)]

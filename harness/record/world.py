@@ -25,8 +25,9 @@ import msgspec
 from mcap.writer import CompressionType, Writer
 
 from harness.core.clock import NS_PER_S
-from harness.record.sample import VehicleSample
+from harness.record.sample import VehicleSample, gimbal_of
 from harness.record.sealed import SealedFile
+from harness.wire.protocol import STATUS_GIMBAL
 
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
 _XYZ = {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}
@@ -85,6 +86,26 @@ _TICK_SCHEMA = {
     },
 }
 
+_GIMBAL_SCHEMA = {
+    "title": "harness.GimbalAttitude",
+    "type": "object",
+    "properties": {
+        "timestamp": _TIME,
+        "frame_id": {"type": "string"},
+        "t_s": {"type": "number"},
+        "vehicle": {"type": "integer"},
+        "roll_deg": {"type": "number"},
+        "pitch_deg": {"type": "number"},
+        "yaw_deg": {"type": "number"},
+        "heading_deg": {"type": "number"},
+        "orientation": {"type": "object", "properties": {**_XYZ, "w": {"type": "number"}}},
+    },
+}
+"""A vehicle's camera gimbal (``/vehicle/<i>/gimbal``, from the first tick its gimbal was used): as PX4's gimbal
+device reports it — roll and pitch earth-stabilised (roll 0: the device has no roll axis), ``yaw_deg`` relative
+to the vehicle's heading — then ``heading_deg``, the camera's yaw from north (the vehicle's true heading plus
+``yaw_deg``), and ``orientation``, the camera's attitude in the ``ned`` world frame (x along the optical axis)."""
+
 _EVENT_SCHEMA = {
     "title": "harness.Event",
     "type": "object",
@@ -141,6 +162,18 @@ class _VehicleState(msgspec.Struct):
     motors: tuple[float | None, ...]
     on_ground: bool
     crashed: bool
+
+
+class _GimbalAttitude(msgspec.Struct):
+    timestamp: _Stamp
+    frame_id: str
+    t_s: float
+    vehicle: int
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+    heading_deg: float
+    orientation: _Xyzw
 
 
 class _TickTiming(msgspec.Struct):
@@ -272,6 +305,10 @@ class WorldRecorder:
         ]
         self._tick = self._w.register_channel("/sim/tick", "json", schema["harness.TickTiming"])
         self._event = self._w.register_channel("/sim/events", "json", schema["harness.Event"])
+        self._gimbal: dict[int, int] = {}
+        """Each vehicle's gimbal channel, registered (with the schema) at its first gimbal sample: a run whose
+        vehicles never used a gimbal writes the file it wrote before there were gimbals."""
+        self._gimbal_schema = 0
         self._seq = 0
         self.closed = False
         self._add = _appender(self._w, chunk_size) or self._add_message
@@ -313,6 +350,27 @@ class WorldRecorder:
         )
         state = _VehicleState(t_ns / NS_PER_S, vehicle, pos, s.vel_ned_m_s, motors, s.on_ground, s.crashed)
         add(self._state[vehicle], log_time, json(state), seq + 3)
+        if s.status & STATUS_GIMBAL:
+            self._gimbal_sample(s, stamp, log_time)
+
+    def _gimbal_sample(self, s: VehicleSample, stamp: _Stamp, log_time: int) -> None:
+        g = gimbal_of(s)
+        if g is None:
+            return
+        channel = self._gimbal.get(s.vehicle)
+        if channel is None:
+            if not self._gimbal_schema:
+                data = json.dumps(_GIMBAL_SCHEMA).encode()
+                self._gimbal_schema = self._w.register_schema("harness.GimbalAttitude", "jsonschema", data)
+            channel = self._gimbal[s.vehicle] = self._w.register_channel(
+                f"/vehicle/{s.vehicle}/gimbal", "json", self._gimbal_schema
+            )
+        w, x, y, z = g.quat_wxyz
+        msg = _GimbalAttitude(
+            stamp, "ned", s.t_ns / NS_PER_S, s.vehicle, 0.0, g.pitch_deg, g.yaw_deg, g.heading_deg, _Xyzw(x, y, z, w)
+        )
+        self._seq += 1
+        self._add(channel, log_time, _json(msg), self._seq)
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
         t_s = t_ns / NS_PER_S

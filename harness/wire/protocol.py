@@ -50,8 +50,9 @@ import msgspec
 
 from harness.core.geo import Vec3
 
-PROTOCOL_VERSION: Final = 3
-"""Bumped on every incompatible change of a message below (3: END-TICK-AC carries ``ticks``)."""
+PROTOCOL_VERSION: Final = 4
+"""Bumped on every incompatible change of a message below (3: END-TICK-AC carries ``ticks``; 4: its status is
+64 bits, with the gimbal's attitude, and each tick record 145 bytes)."""
 
 MAX_FRAME_BYTES: Final = 16 * 1024 * 1024
 """Frames larger than this are refused as malformed (a garbage length prefix must not allocate GBs)."""
@@ -193,7 +194,7 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
             raise ValueError(f"END-TICK-AC ticks of {len(self.ticks)} bytes, not a multiple of {TICK_BYTES}")
 
 
-_TICK = struct.Struct("<13dB4dI")
+_TICK = struct.Struct("<13dB4dQ")
 TICK_BYTES: Final = _TICK.size
 _POS = struct.Struct("<3d")
 
@@ -242,7 +243,7 @@ class TickReport(NamedTuple):
 
 def pack_tick(truth: TruthLike, motors: tuple[float, ...], status: int) -> bytes:
     """One record of END-TICK-AC ``ticks``: 13 little-endian doubles of truth (every bit kept), a flags
-    byte, 4 doubles of motors and the status, 141 bytes."""
+    byte, 4 doubles of motors and the status (64 bits), 145 bytes."""
     flags = (1 if truth.on_ground else 0) | (2 if truth.crashed else 0)
     return _TICK.pack(
         *truth.pos_ned_m, *truth.vel_ned_m_s, *truth.quat, truth.lat_deg, truth.lon_deg, truth.alt_amsl_m, flags,
@@ -281,16 +282,43 @@ def last_position(ticks: bytes) -> Vec3:
 
 STATUS_ARMED: Final = 1
 """The armed bit of an END-TICK-AC ``status`` (``status & STATUS_ARMED``: what the root reads at every tick)."""
+STATUS_GIMBAL: Final = 1 << 24
+"""Set when the status carries a gimbal's attitude (:func:`unpack_gimbal`); never for a vehicle whose gimbal
+nobody used, whose status is then what it was without gimbals."""
+_GIMBAL_MDEG_PER_DEG: Final = 1000
+_PITCH_BITS, _YAW_BITS = 18, 19
 
 
-def pack_status(armed: bool, landed_state: int, main_mode: int, sub_mode: int) -> int:
-    """END-TICK-AC ``status``: bit 0 armed, bits 1-3 MAV_LANDED_STATE, 8-15 PX4 main mode, 16-23 sub mode."""
-    return (
+def pack_status(
+    armed: bool, landed_state: int, main_mode: int, sub_mode: int, gimbal: tuple[float, float] | None = None
+) -> int:
+    """END-TICK-AC ``status``: bit 0 armed, bits 1-3 MAV_LANDED_STATE, 8-15 PX4 main mode, 16-23 sub mode;
+    with a ``gimbal`` (pitch earth-stabilised in [-90, 90], yaw relative to the heading in [-180, 180], degrees)
+    bit 24 (:data:`STATUS_GIMBAL`), then the pitch + 90 (bits 25-42) and the yaw + 180 (bits 43-61) in
+    thousandths of a degree. Below 2**62: one integer of every msgspec and ``struct`` codec."""
+    status = (
         (STATUS_ARMED if armed else 0)
         | ((landed_state & 0x7) << 1)
         | ((main_mode & 0xFF) << 8)
         | ((sub_mode & 0xFF) << 16)
     )
+    if gimbal is None:
+        return status
+    pitch, yaw = gimbal
+    k = _GIMBAL_MDEG_PER_DEG
+    pitch_m = min(max(round((pitch + 90.0) * k), 0), 180 * k)
+    yaw_m = min(max(round((yaw + 180.0) * k), 0), 360 * k)
+    return status | STATUS_GIMBAL | (pitch_m << 25) | (yaw_m << (25 + _PITCH_BITS))
+
+
+def unpack_gimbal(status: int) -> tuple[float, float] | None:
+    """(pitch, yaw relative to the heading) in degrees from an END-TICK-AC ``status``; None without a gimbal."""
+    if not status & STATUS_GIMBAL:
+        return None
+    k = _GIMBAL_MDEG_PER_DEG
+    pitch_m = (status >> 25) & ((1 << _PITCH_BITS) - 1)
+    yaw_m = (status >> (25 + _PITCH_BITS)) & ((1 << _YAW_BITS) - 1)
+    return (pitch_m - 90 * k) / k, (yaw_m - 180 * k) / k
 
 
 def unpack_status(status: int) -> tuple[bool, int, int, int]:

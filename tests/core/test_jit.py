@@ -78,9 +78,11 @@ def test_only_vehicle_stepping_processes_import_numba() -> None:
         return out.stdout.strip() == "True"
 
     # the CLI (harness --help), a mission process, the network subscriber, the scenario layer (which reads the
-    # sensors' configuration), the sweep driver and the launcher's module: no
+    # sensors' configuration), the sweep driver, the launcher's module and the MAVLink package (the plan's
+    # check reads its parameter tables before the launcher chooses whether to compile): no
     for module in (
         "harness.cli",
+        "harness.autopilot.mavlink",
         "harness.simclock.mission",
         "harness.net.subscriber",
         "harness.scenario.config",

@@ -118,5 +118,37 @@ def test_tick_records_keep_every_bit_and_a_torn_one_is_malformed() -> None:
     import msgspec
 
     body = msgspec.msgpack.encode(["ETA", 8, 3, [1.0, 1.0, 1.0, 1.0], 1, records[:-1]])
-    with pytest.raises(p.ProtocolError, match="not a multiple of 141"):
+    with pytest.raises(p.ProtocolError, match=f"not a multiple of {p.TICK_BYTES}"):
         p.decode_body(body)
+
+
+@given(
+    st.booleans(),
+    st.integers(0, 4),
+    st.integers(0, 255),
+    st.integers(0, 255),
+    st.floats(-90.0, 30.0),
+    st.floats(-180.0, 180.0),
+)
+def test_status_carries_a_gimbal_to_a_thousandth_of_a_degree_and_nothing_without_one(
+    armed: bool, landed: int, main: int, sub: int, pitch: float, yaw: float
+) -> None:
+    """END-TICK-AC ``status`` with a gimbal: the mode fields read as before, the attitude to 0.0005 deg, through
+    a worker's tick record too; without a gimbal the status is the old one, and says none."""
+    bare = p.pack_status(armed, landed, main, sub)
+    assert bare == p.pack_status(armed, landed, main, sub, None) < p.STATUS_GIMBAL
+    assert p.unpack_gimbal(bare) is None
+    status = p.pack_status(armed, landed, main, sub, (pitch, yaw))
+    assert p.unpack_status(status) == p.unpack_status(bare) == (armed, landed, main, sub)
+    got = p.unpack_gimbal(status)
+    assert got is not None and abs(got[0] - pitch) <= 0.0005 and abs(got[1] - yaw) <= 0.0005
+    truth = p.TruthReport((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), 47.0, 8.0, 400.0, True, False)
+    (report,) = p.unpack_ticks(p.pack_tick(truth, (0.0, 0.0, 0.0, 0.0), status))
+    assert report.status == status
+    assert p.decode_body(p.encode(p.EndTickAC(1, 0, (0.0,) * 4, status))[4:]) == p.EndTickAC(1, 0, (0.0,) * 4, status)
+
+
+def test_a_commanded_gimbal_angle_reads_back_exactly() -> None:
+    assert p.unpack_gimbal(p.pack_status(True, 2, 4, 3, (-60.0, 30.0))) == (-60.0, 30.0)
+    assert p.unpack_gimbal(p.pack_status(False, 1, 0, 0, (-90.0, -180.0))) == (-90.0, -180.0)
+    assert p.unpack_gimbal(p.pack_status(False, 1, 0, 0, (90.0, 180.0))) == (90.0, 180.0)

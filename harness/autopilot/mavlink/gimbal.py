@@ -17,31 +17,30 @@
   in deg/s; flags param5 / COMMAND_INT x), MAV_CMD_DO_SET_ROI_LOCATION (195: point at a global position,
   tracked as the vehicle moves), MAV_CMD_DO_SET_ROI_NONE (197).
 
-The device moves on sim time at most 90 deg/s per axis towards its target (or at the commanded rates),
-within pitch [-90, +30] deg and yaw [-180, +180] deg around the vehicle's heading. With the yaw lock flag
-the yaw target is held in the earth frame as the vehicle turns. Nothing of the gimbal touches the flight.
+The device itself is the autopilot's ``gimbal`` service (``harness.autopilot.gimbal``): it moves in lockstep
+on sim time, at most 90 deg/s per axis towards its target (or at the commanded rates), within pitch [-90, +30]
+deg and yaw [-180, +180] deg around the vehicle's heading; with the yaw lock flag the yaw target is held in the
+earth frame as the vehicle turns. Its attitude also goes to the recordings with each tick (END-TICK-AC).
+Nothing of the gimbal touches the flight.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import CommandResult, VehicleState
+from harness.autopilot.gimbal import PITCH_MAX, PITCH_MIN, YAW_MAX, YAW_MIN, wrap180
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.service import CommandHandler, Service, outcome
 from harness.autopilot.mavlink.telemetry import Builder
-from harness.autopilot.services import System
+from harness.autopilot.services import Gimbal, System
 
 _M = mavlink2
 DEVICE_ID = 1
-PITCH_MIN, PITCH_MAX = -90.0, 30.0
-YAW_MIN, YAW_MAX = -180.0, 180.0
-SLEW_DEG_S = 90.0
 CMD_PITCHYAW = 1000
 CMD_CONFIGURE = 1001
 CMD_ROI_LOCATION = 195
@@ -64,10 +63,6 @@ def _clamp(v: float, lo: float, hi: float) -> float:
     return max(lo, min(hi, v))
 
 
-def _wrap180(deg: float) -> float:
-    return (deg + 180.0) % 360.0 - 180.0
-
-
 def euler_of(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
     """(roll, pitch, yaw) in degrees of a quaternion (w, x, y, z), aerospace ZYX."""
     w, x, y, z = q
@@ -88,24 +83,6 @@ def quat_of(roll_deg: float, pitch_deg: float, yaw_deg: float) -> tuple[float, f
     )
 
 
-@dataclass(slots=True)
-class GimbalState:
-    """The device (degrees; yaw relative to the vehicle's heading) and what it is asked to do."""
-
-    pitch_deg: float = 0.0
-    yaw_deg: float = 0.0
-    pitch_rate_deg_s: float = 0.0
-    yaw_rate_deg_s: float = 0.0
-    target_pitch_deg: float | None = 0.0
-    target_yaw_deg: float | None = 0.0
-    """None: move at the commanded rate instead."""
-    yaw_lock: bool = False
-    """The yaw target is in the earth frame (degrees from north)."""
-    roi: tuple[float, float, float] | None = None
-    """(lat, lon, alt AMSL) to point at."""
-    t_ns: int | None = None
-
-
 class GimbalService(Service):
     message_ids = frozenset(
         {_M.MAVLINK_MSG_ID_GIMBAL_MANAGER_SET_ATTITUDE, _M.MAVLINK_MSG_ID_GIMBAL_MANAGER_SET_PITCHYAW}
@@ -116,11 +93,11 @@ class GimbalService(Service):
     }
     """Started when a client first uses the gimbal (see the module's docstring)."""
 
-    def __init__(self, api: System, sysid: int) -> None:
+    def __init__(self, api: System, gimbal: Gimbal, sysid: int) -> None:
         super().__init__()
         self.api = api
+        self.gimbal = gimbal
         self.sysid = sysid
-        self.g = GimbalState()
         self.primary = (0, 0)
         self.secondary = (0, 0)
         self.sender = (0, 0)
@@ -173,13 +150,12 @@ class GimbalService(Service):
 
     def _manager_status(self, mav: mavlink2.MAVLink, s: VehicleState, t_ms: int) -> MAVLinkMessage:
         flags = _M.GIMBAL_MANAGER_FLAGS_ROLL_LOCK | _M.GIMBAL_MANAGER_FLAGS_PITCH_LOCK
-        if self.g.yaw_lock:
+        if self.gimbal.attitude().yaw_lock:
             flags |= _M.GIMBAL_MANAGER_FLAGS_YAW_LOCK
         return mav.gimbal_manager_status_encode(t_ms, flags, DEVICE_ID, *self.primary, *self.secondary)
 
     def _attitude_status(self, mav: mavlink2.MAVLink, s: VehicleState, t_ms: int) -> MAVLinkMessage:
-        self._move(s)
-        g = self.g
+        g = self.gimbal.attitude()
         flags = (
             _M.GIMBAL_DEVICE_FLAGS_ROLL_LOCK
             | _M.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
@@ -191,81 +167,28 @@ class GimbalService(Service):
         r = math.radians
         return mav.gimbal_device_attitude_status_encode(
             0, 0, t_ms, flags, q, 0.0, r(g.pitch_rate_deg_s), r(g.yaw_rate_deg_s), 0,
-            _wrap180(math.degrees(s.yaw_rad) + g.yaw_deg) * math.pi / 180.0, float("nan"), DEVICE_ID,
+            wrap180(math.degrees(s.yaw_rad) + g.yaw_deg) * math.pi / 180.0, float("nan"), DEVICE_ID,
         )  # fmt: skip
 
-    # ------------------------------------------------------------------ the device, on sim time
     def attitude_deg(self) -> tuple[float, float]:
         """(pitch, yaw relative to the vehicle) of the device now, degrees."""
-        return self.g.pitch_deg, self.g.yaw_deg
-
-    def _move(self, s: VehicleState) -> None:
-        g = self.g
-        dt = 0.0 if g.t_ns is None else max(0.0, (s.t_ns - g.t_ns) / 1e9)
-        g.t_ns = s.t_ns
-        heading = math.degrees(s.yaw_rad)
-        tp, ty = g.target_pitch_deg, g.target_yaw_deg
-        if g.roi is not None:
-            tp, ty = self._roi_angles(s, g.roi)
-        elif ty is not None and g.yaw_lock:
-            ty = _wrap180(ty - heading)
-        if tp is None:
-            g.pitch_deg = _clamp(g.pitch_deg + g.pitch_rate_deg_s * dt, PITCH_MIN, PITCH_MAX)
-        else:
-            step = SLEW_DEG_S * dt
-            new = g.pitch_deg + _clamp(_clamp(tp, PITCH_MIN, PITCH_MAX) - g.pitch_deg, -step, step)
-            g.pitch_rate_deg_s = (new - g.pitch_deg) / dt if dt > 0 else 0.0
-            g.pitch_deg = new
-        if ty is None:
-            g.yaw_deg = _clamp(g.yaw_deg + g.yaw_rate_deg_s * dt, YAW_MIN, YAW_MAX)
-        else:
-            step = SLEW_DEG_S * dt
-            new = g.yaw_deg + _clamp(_clamp(ty, YAW_MIN, YAW_MAX) - g.yaw_deg, -step, step)
-            g.yaw_rate_deg_s = (new - g.yaw_deg) / dt if dt > 0 else 0.0
-            g.yaw_deg = new
-
-    @staticmethod
-    def _roi_angles(s: VehicleState, roi: tuple[float, float, float]) -> tuple[float, float]:
-        lat, lon, alt = roi
-        north = math.radians(lat - s.lat_deg) * 6_378_137.0
-        east = math.radians(lon - s.lon_deg) * 6_378_137.0 * math.cos(math.radians(s.lat_deg))
-        up = alt - s.alt_amsl_m
-        pitch = math.degrees(math.atan2(up, math.hypot(north, east)))
-        yaw = _wrap180(math.degrees(math.atan2(east, north)) - math.degrees(s.yaw_rad))
-        return pitch, yaw
+        g = self.gimbal.attitude()
+        return g.pitch_deg, g.yaw_deg
 
     # ------------------------------------------------------------------ control
     def _may_control(self, sysid: int, compid: int) -> bool:
         return self.primary == (0, 0) or (sysid, compid) in (self.primary, self.secondary)
 
-    def _set_angles(self, pitch: float, yaw: float, flags: int) -> None:
-        self._move(self.api.telemetry.state())  # up to now under the previous setpoint
-        g = self.g
-        g.roi = None
-        g.target_pitch_deg, g.target_yaw_deg = pitch, yaw
-        g.yaw_lock = bool(flags & _M.GIMBAL_MANAGER_FLAGS_YAW_LOCK)
-
-    def _set_rates(self, pitch_rate: float, yaw_rate: float, flags: int) -> None:
-        self._move(self.api.telemetry.state())
-        g = self.g
-        g.roi = None
-        g.target_pitch_deg = g.target_yaw_deg = None
-        g.pitch_rate_deg_s, g.yaw_rate_deg_s = pitch_rate, yaw_rate
-        g.yaw_lock = bool(flags & _M.GIMBAL_MANAGER_FLAGS_YAW_LOCK)
-
     def _setpoint(self, pitch: float, yaw: float, pitch_rate: float, yaw_rate: float, flags: int) -> str:
         """Angles in degrees (NaN = use the rates, deg/s); a reason when refused."""
+        yaw_lock = bool(flags & _M.GIMBAL_MANAGER_FLAGS_YAW_LOCK)
         if not (math.isnan(pitch) or math.isnan(yaw)):
-            if not (math.isfinite(pitch) and math.isfinite(yaw)):
-                return "gimbal: angles must be finite"
-            self._set_angles(pitch, yaw, flags)
-            return ""
-        pr = 0.0 if math.isnan(pitch_rate) else pitch_rate
-        yr = 0.0 if math.isnan(yaw_rate) else yaw_rate
-        if not (math.isfinite(pr) and math.isfinite(yr)):
-            return "gimbal: rates must be finite"
-        self._set_rates(pr, yr, flags)
-        return ""
+            result = self.gimbal.set_angles(pitch, yaw, yaw_lock)
+        else:
+            pr = 0.0 if math.isnan(pitch_rate) else pitch_rate
+            yr = 0.0 if math.isnan(yaw_rate) else yaw_rate
+            result = self.gimbal.set_rates(pr, yr, yaw_lock)
+        return result.reason
 
     def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out]:
         self.in_use()
@@ -334,12 +257,8 @@ class GimbalService(Service):
             lat, lon = p[4] / 1e7, p[5] / 1e7
         else:
             lat, lon = p[4], p[5]
-        alt = p[6]
-        if not all(math.isfinite(v) for v in (lat, lon, alt)) or abs(lat) > 90 or abs(lon) > 180:
-            return outcome(CommandResult.denied("ROI: latitude, longitude and altitude must be valid"))
-        self.g.roi = (lat, lon, alt)
-        return outcome(CommandResult.accepted())
+        return outcome(self.gimbal.point_at(lat, lon, p[6]))
 
     def _cmd_roi_none(self, c: CommandIn) -> CommandOutcome:
-        self._set_angles(0.0, 0.0, 0)
-        return outcome(CommandResult.accepted())
+        reason = self._setpoint(0.0, 0.0, math.nan, math.nan, 0)
+        return outcome(CommandResult.denied(reason) if reason else CommandResult.accepted())

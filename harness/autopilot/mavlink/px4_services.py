@@ -1,5 +1,5 @@
 """PX4 SITL's services beyond the flight core, registered in one place: sensor calibration, the gimbal
-manager, MAVFTP, the MAVLink shell and reboot (one sans-I/O module each; ``service.py`` is their shape).
+manager (for the autopilot's ``gimbal``, when it has one), MAVFTP, the MAVLink shell and reboot (one sans-I/O module each; ``service.py`` is their shape).
 
 :class:`Px4Services` is what the PX4 dialect (``personality.Px4Dialect``) adds to the generic services: it
 routes the messages each service declares, registers their commands with the command service (same ACK,
@@ -31,11 +31,13 @@ class Px4Services:
     def __init__(self, api: System, sysid: int) -> None:
         vehicle = sysid - 1
         self.calibration = CalibrationService(api)
-        self.gimbal = GimbalService(api, sysid)
+        self.gimbal = GimbalService(api, api.gimbal, sysid) if api.gimbal is not None else None
         self.ftp = FtpService(api, vehicle)
         self.reboot = RebootService(api, vehicle)
-        self.shell = ShellService(api, self.reboot.reboot, self.gimbal.attitude_deg)
-        self.services: tuple[Service, ...] = (self.calibration, self.gimbal, self.ftp, self.shell, self.reboot)
+        self.shell = ShellService(api, self.reboot.reboot, self.gimbal.attitude_deg if self.gimbal else None)
+        self.services: tuple[Service, ...] = tuple(
+            s for s in (self.calibration, self.gimbal, self.ftp, self.shell, self.reboot) if s is not None
+        )
         self._by_message: dict[int, Service] = {}
         self.builders: dict[int, Builder] = {}
         self.stream_defaults: dict[int, int] = {}
@@ -51,7 +53,8 @@ class Px4Services:
         """The server's encoder and its SET_MESSAGE_INTERVAL (streams a service starts when it is used)."""
         for s in self.services:
             s.bind(mav)
-        self.gimbal.bind_streams(set_interval)
+        if self.gimbal is not None:
+            self.gimbal.bind_streams(set_interval)
 
     def command_handlers(self) -> Mapping[int, CommandHandler]:
         return self._commands
@@ -60,7 +63,7 @@ class Px4Services:
         """The outs of the service that owns ``m``; None when none does (the generic services take it)."""
         mid = m.get_msgId()
         if mid in _COMMAND_IDS:
-            if m.command == CMD_CONFIGURE:  # who takes gimbal control: the sender of the command
+            if m.command == CMD_CONFIGURE and self.gimbal is not None:  # who takes gimbal control: the sender
                 self.gimbal.sender = (origin.sysid, origin.compid)
             return None
         service = self._by_message.get(mid)

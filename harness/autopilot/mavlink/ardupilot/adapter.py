@@ -27,7 +27,18 @@ from harness.autopilot.api import (
     VehicleState,
 )
 from harness.autopilot.mavlink.ardupilot.params import CopterParams
-from harness.autopilot.services import Action, Bell, Failure, FollowMe, Gripper, LogFiles, ManualInput, Offboard, System
+from harness.autopilot.services import (
+    Action,
+    Bell,
+    Failure,
+    FollowMe,
+    Gimbal,
+    Gripper,
+    LogFiles,
+    ManualInput,
+    Offboard,
+    System,
+)
 
 _ARMING_DENIED = "Arming denied: "
 
@@ -127,8 +138,8 @@ class CopterTelemetry:
 
 
 class CopterSystem:
-    """The core's services as ArduCopter presents them: its own ``mission``, ``telemetry`` and ``params``;
-    every other service is the core's own object."""
+    """The core's services as ArduCopter presents them: its own ``mission``, ``telemetry`` and ``params``, no
+    ``gimbal`` (this dialect has no mount); every other service is the core's own object."""
 
     def __init__(self, core: System, params: CopterParams) -> None:
         self.vehicle = core.vehicle
@@ -141,5 +152,6 @@ class CopterSystem:
         self.manual_control: ManualInput | None = core.manual_control
         self.follow_me: FollowMe | None = core.follow_me
         self.gripper: Gripper | None = core.gripper
+        self.gimbal: Gimbal | None = None
         self.log_files: LogFiles | None = core.log_files
         self.bell: Bell | None = core.bell
