@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import gc
-import json
 import logging
 import os
 import secrets
@@ -39,6 +38,7 @@ from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import RecordingError, first_per_file, lost_message, writable_dir
 from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
 from harness.fdm.sensors import SensorConfig
+from harness.net.process_config import NetworkProcessConfig
 from harness.record.sample import VehicleSample, WorldEvent
 from harness.record.sink import WorldSink, WorldTee, open_world
 from harness.record.status import Checkpoint
@@ -399,23 +399,12 @@ class Launcher:
             config_file.write_bytes(config.to_json())
             sup.start(name, [_python(), "-m", "harness.autopilot.sitl", "--config", str(config_file)], env=env)
         if plan.network != NetworkKind.NONE:
-            sup.start(
-                "network",
-                [
-                    _python(),
-                    "-m",
-                    "harness.net.subscriber",
-                    "--address",
-                    address,
-                    "--model",
-                    plan.network,
-                    "--seed",
-                    str(plan.seed),
-                    "--params",
-                    json.dumps(plan.network_params),
-                ],
-                env=env,
+            network = NetworkProcessConfig(
+                address=address, model=plan.network, seed=plan.seed, params=plan.network_params, run_dir=str(plan.out)
             )
+            config_file = plan.out / "network.json"
+            config_file.write_bytes(network.to_json())
+            sup.start("network", [_python(), "-m", "harness.net.subscriber", "--config", str(config_file)], env=env)
         forked = _mission_count(plan) > 1  # one fork server imports for them all (one: it would only add a hop)
         for i, m in enumerate(plan.missions[: plan.vehicles]):
             if m is None:
