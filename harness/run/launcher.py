@@ -183,7 +183,9 @@ class Launcher:
         self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
         self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
         sup = stack.enter_context(Children(plan.out, clock=self.clock, fork_preload=swarm.MISSION_PRELOAD))
-        channel = Channel(  # no socket listens before attach_physics() below, once its close is on the stack
+        # the channel's close goes on the stack after the recorders' (it is released first); until attach_physics()
+        # below it holds only its wake-up socket pair, nothing listens
+        channel = Channel(
             ChannelConfig(
                 tick_hz=plan.tick_hz,
                 phase_every=plan.phase_every,
@@ -204,7 +206,7 @@ class Launcher:
         channel.attach_physics()
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         extra, clock = self._summary_extra, self.clock
-        checkpoint = Checkpoint(  # summary.json while the run runs ("killed" once this process is gone)
+        checkpoint = Checkpoint(  # summary.json while the run runs; ``run`` is bound below, before the first write
             plan.out,
             lambda: (
                 RunResult(
