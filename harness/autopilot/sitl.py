@@ -89,7 +89,7 @@ class TlogWriter:
                     self._failed(exc)
 
 
-class _Attached:
+class AttachedMavlink:
     def __init__(self, server: MavlinkServer, tlog: TlogWriter | None, ulog: FlightLog | None = None) -> None:
         self.server = server
         self.tlog = tlog
@@ -115,7 +115,7 @@ def attach_mavlink(
     hub: MavlinkHub | None = None,
     firmware: Firmware = Firmware.PX4,
     trust_unsigned: Callable[[bool, tuple[str, int]], bool] | None = None,
-) -> _Attached:
+) -> AttachedMavlink:
     """The MAVLink server (and tlog, stored parameters) of ``ap``, served by ``hub`` (or a thread of its own),
     presenting ``firmware``'s personality, on the hub's wall clock; with ``signing``, unsigned frames are
     obeyed only from peers ``trust_unsigned`` accepts (the run's own processes, ``runlocal.py``)."""
@@ -146,10 +146,10 @@ def attach_mavlink(
         server.start()
     else:
         hub.add(server)
-    return _Attached(server, tlog, ulog)
+    return AttachedMavlink(server, tlog, ulog)
 
 
-def close_mavlink(hub: MavlinkHub, attached: Sequence[_Attached]) -> None:
+def close_mavlink(hub: MavlinkHub, attached: Sequence[AttachedMavlink]) -> None:
     """Stop ``hub`` first, then close each vehicle's MAVLink side: a server leaving a running hub waits for
     its thread (which serves every other vehicle meanwhile), one after the other: seconds for fifty."""
     hub.stop()
@@ -289,7 +289,7 @@ def serve(cfg: AutopilotProcessConfig) -> int:
         return AutopilotConfig(vehicle=v, use_ground_truth=cfg.ground_truth, params=params)
 
     hub = MavlinkHub()
-    attached: list[_Attached] = []
+    attached: list[AttachedMavlink] = []
     try:
         aps = make_autopilots(vehicles, config_for)
         for v, autopilot in aps.items():

@@ -1,10 +1,12 @@
 """The network process: a type-1 subscriber that carries phase-0 packets through a network model.
 
+    python -m harness.net.subscriber --config RUN/network.json     # as harness run starts it
     python -m harness.net.subscriber --address tcp://127.0.0.1:5760 --model builtin --seed 1 --params '{}'
 
 On every BEGIN-TICK-1 it runs the model over the interval with the tick's positions and packets, sends a
 DELIVER for every packet that arrives (broadcasts expanded per receiver), then END-TICK-1. Every delivery
-and drop (with its cause) is appended to ``network-events.jsonl`` in ``$HARNESS_RUN_DIR`` when set.
+and drop (with its cause) is appended to ``network-events.jsonl`` in the run directory when there is one
+(the configuration's ``run_dir``; by hand, ``--run-dir``, default ``$HARNESS_RUN_DIR``).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import IO
 from harness.core import lifeline
 from harness.core.errors import HarnessError, ScenarioError
 from harness.net.model import NetworkKind, NetworkModel, StepResult, lookahead_ns
+from harness.net.process_config import NetworkProcessConfig
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
 
@@ -91,24 +94,25 @@ def serve(client: ChannelClient, model: NetworkModel, events: IO[str] | None = N
 def main(argv: Sequence[str] | None = None) -> int:
     lifeline.hold_on()  # started by a run (Children): die with it, before anything else
     ap = argparse.ArgumentParser(prog="python -m harness.net.subscriber", description=__doc__)
-    ap.add_argument("--address", required=True)
+    ap.add_argument("--config", type=Path, default=None, help="the whole configuration (harness run's network.json)")
+    ap.add_argument("--address", default=None)
     ap.add_argument("--model", default="builtin")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--params", default="{}", help="JSON object of model parameters")
     ap.add_argument("--name", default="network")
+    ap.add_argument("--run-dir", default=os.environ.get("HARNESS_RUN_DIR"), help="default $HARNESS_RUN_DIR")
     a = ap.parse_args(argv)
+    if a.config is None and a.address is None:
+        ap.error("--address (or --config) is required")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        params = json.loads(a.params)
-        if not isinstance(params, dict):
-            raise ScenarioError(f"--params must be a JSON object, got {a.params!r}")
-        model = make_model(a.model, a.seed, params)
-        client = ChannelClient.connect(a.address, p.PeerKind.TYPE1, a.name)
-    except (HarnessError, json.JSONDecodeError) as exc:
+        cfg = NetworkProcessConfig.read(a.config) if a.config is not None else _from_flags(a)
+        model = make_model(cfg.model, cfg.seed, cfg.params)
+        client = ChannelClient.connect(cfg.address, p.PeerKind.TYPE1, cfg.name)
+    except HarnessError as exc:
         log.error("%s", exc)
         return 2
-    run_dir = os.environ.get("HARNESS_RUN_DIR")
-    events = (Path(run_dir) / "network-events.jsonl").open("a") if run_dir else None
+    events = (Path(cfg.run_dir) / "network-events.jsonl").open("a") if cfg.run_dir else None
     try:
         serve(client, model, events)
     except HarnessError as exc:
@@ -119,6 +123,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         if events is not None:
             events.close()
     return 0
+
+
+def _from_flags(a: argparse.Namespace) -> NetworkProcessConfig:
+    """The configuration of a process started by hand, as ``--config`` would give it."""
+    try:
+        params = json.loads(a.params)
+    except json.JSONDecodeError as exc:
+        raise ScenarioError(f"--params is not JSON: {exc}") from None
+    if not isinstance(params, dict):
+        raise ScenarioError(f"--params must be a JSON object, got {a.params!r}")
+    if a.model not in set(NetworkKind):
+        raise ScenarioError(f"network model {a.model!r} is unknown: use 'builtin', 'ns3' or 'none'")
+    return NetworkProcessConfig(
+        address=a.address, model=NetworkKind(a.model), seed=a.seed, params=params, name=a.name, run_dir=a.run_dir
+    )
 
 
 if __name__ == "__main__":

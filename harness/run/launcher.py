@@ -15,8 +15,8 @@ has exited, the duration is reached, a fault fails the run, or on Ctrl-C; every 
 
 from __future__ import annotations
 
+import contextlib
 import gc
-import json
 import logging
 import os
 import secrets
@@ -25,8 +25,9 @@ import sys
 import tempfile
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.process_config import AutopilotProcessConfig
@@ -35,6 +36,9 @@ from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import RecordingError, first_per_file, lost_message, writable_dir
+from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
+from harness.fdm.sensors import SensorConfig
+from harness.net.process_config import NetworkProcessConfig
 from harness.record.sample import VehicleSample, WorldEvent
 from harness.record.sink import WorldSink, WorldTee, open_world
 from harness.record.status import Checkpoint
@@ -50,6 +54,12 @@ from harness.scenario.limits import check_plan
 from harness.scenario.plan import AutopilotPlacement, LaunchPlan, MissionPlan, NetworkKind
 from harness.wire import protocol as p
 
+if TYPE_CHECKING:  # the flight stack is imported when the in-process autopilots are built, after the children
+    # have started (``_local_autopilots``): at module level it would put its import (numba's kernels: 1.4 s
+    # by `python -X importtime` on the loaded two-core machine) before them
+    from harness.autopilot.autopilot import Autopilot
+    from harness.autopilot.sitl import AttachedMavlink
+
 PHYSICS_FILE = "physics.json"
 """The run's physics configuration in its directory, from which each autopilot host builds its share."""
 
@@ -58,6 +68,42 @@ log = logging.getLogger(__name__)
 
 def _python() -> str:
     return sys.executable
+
+
+@dataclass
+class _Run:
+    """What one run holds (:meth:`Launcher._open`), every resource of it on the run's ``ExitStack``."""
+
+    channel: Channel
+    world: WorldTee
+    sup: Children
+    local: contextlib.ExitStack
+    """The in-process autopilots' MAVLink side: closed after the channel, before the recorders."""
+    checkpoint: Checkpoint
+    physics_cfg: PhysicsConfig
+    in_hosts: frozenset[int]
+    """Vehicles whose physics an autopilot host steps (configured by ``physics.json``)."""
+    summaries: list[VehicleSummary]
+    settled: list[str]
+    """Missions whose process said how they ended (filled just before the children are stopped)."""
+    wall0: int
+    phys: Physics | None = None
+    """This process's share of the physics: built while the children start (they import meanwhile)."""
+    aps: dict[int, Autopilot] = field(default_factory=dict)
+    """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
+    attached: list[AttachedMavlink] = field(default_factory=list)
+    """Their MAVLink sides (with their tlog and ULog writers)."""
+    status: RunStatus = RunStatus.OK
+    message: str = ""
+    lost: list[RecordingError] = field(default_factory=list)
+
+    @property
+    def t_ns(self) -> int:
+        return self.phys.t_ns if self.phys is not None else 0
+
+    def log_errors(self) -> list[RecordingError]:
+        """The vehicles' logs in this process (tlogs, ULogs) that could not be written."""
+        return [RecordingError.of(path, exc) for handle in self.attached for path, exc in handle.write_errors()]
 
 
 class Launcher:
@@ -73,11 +119,6 @@ class Launcher:
         self.paused = threading.Event()
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
-        self._aps: dict[int, Any] = {}
-        """Autopilots inside this process (``autopilots = "in-process"``), by vehicle."""
-        self._attached: list[Any] = []
-        """Their MAVLink sides (with their tlog and ULog writers)."""
-        self._checkpoint: Checkpoint | None = None
         self._pacing: dict[str, float] | None = None
         """``--speed``'s account of a run that ended normally (``_pacing``)."""
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port or 0
@@ -87,9 +128,37 @@ class Launcher:
         missions, on sim time; `harness sitl` serves hand-run tools on the wall clock there."""
 
     def run(self) -> RunResult:
-        from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
-        from harness.fdm.sensors import SensorConfig
+        """The run context (every resource on one ExitStack, released in reverse order however the run ends),
+        start-up, the tick loop, then the result and ``summary.json`` once every process is gone."""
+        with contextlib.ExitStack() as stack:
+            run = self._open(stack)
+            try:
+                self._start(run)
+                # What start-up built (modules, JSBSim, autopilots, Rerun) lives to the end of the run: out of the
+                # cycle collector's sight while the loop runs, a full collection walks only what the loop made
+                # (at 100 vehicles one took 60-75 ms of CPU, 11 times in 30 s of sim). No result changes.
+                gc.freeze()
+                try:
+                    self._loop(run)
+                finally:
+                    gc.unfreeze()
+            except KeyboardInterrupt as exc:
+                run.status, run.message = RunStatus.INTERRUPTED, stop_reason(exc)
+                run.world.interrupted()
+            except SimulationError as exc:
+                run.status, run.message = RunStatus.FAILED, str(exc)
+                if isinstance(exc, RecordingError):
+                    run.lost.append(exc)
+            except Exception as exc:  # a bug must still stop every process and write the summary
+                log.exception("the run failed")
+                run.status, run.message = RunStatus.FAILED, f"internal error: {exc!r}"
+        return self._result(run)
 
+    def _open(self, stack: contextlib.ExitStack) -> _Run:
+        """The run's resources, each on ``stack`` as soon as it exists, so that they are released in this
+        order: the channel (every peer told), the in-process autopilots' MAVLink side (first: its thread would
+        compete with the recorders' closing), the recorders, the missions' own ends (:func:`settle`), every
+        child process, the reserved ports (the block stays this run's until every process has stopped)."""
         plan = self.plan
         n = plan.vehicles + plan.remote_vehicles
         physics_cfg = PhysicsConfig(
@@ -103,14 +172,19 @@ class Launcher:
             sensors=SensorConfig.for_gps(plan.gps, noise=plan.sensor_noise),
         )
         # each autopilot host steps its vehicles' physics too (configured by this file); this process the rest
-        in_hosts = {v for group in self._autopilot_groups() for v in group}
+        in_hosts = frozenset(v for group in self._autopilot_groups() for v in group)
         if in_hosts:
             try:
                 (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
             except OSError as exc:
                 raise RecordingError.of(plan.out / PHYSICS_FILE, exc) from None
-        phys: Any = None
-        """This process's share of the physics: built while the children start (they import meanwhile)."""
+        wall0 = self.clock.now_ns()
+        ports = stack.enter_context(allocate(plan.vehicles, plan.api_port_base, plan.gcs_port))
+        self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
+        self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
+        sup = stack.enter_context(Children(plan.out, clock=self.clock, fork_preload=swarm.MISSION_PRELOAD))
+        # the channel's close goes on the stack after the recorders' (it is released first); until attach_physics()
+        # below it holds only its wake-up socket pair, nothing listens
         channel = Channel(
             ChannelConfig(
                 tick_hz=plan.tick_hz,
@@ -122,105 +196,87 @@ class Launcher:
                 secret=plan.secret,
             )
         )
-        channel.attach_physics()
+        settled: list[str] = []
+        # a mission the channel saw only disconnect (os._exit, kill -9): its process says how it ended
+        stack.callback(lambda: settled.extend(settle(channel.mission_exits, sup.procs, mission_process(plan), 2.0)))
         world = open_world(plan.out, self.epoch_ns, n, plan.origin, serve_port=plan.view_port)
+        stack.callback(world.close)
+        local = stack.enter_context(contextlib.ExitStack())
+        stack.callback(channel.close, "end of run")
+        channel.attach_physics()
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
-        faults: list[dict[str, Any]] = []
-        status, message = RunStatus.OK, ""
-        lost: list[RecordingError] = []
-        wall0 = self.clock.now_ns()
-        t_ns = 0
-        ports = allocate(plan.vehicles, plan.api_port_base, plan.gcs_port)
-        self.api_port_base, self.gcs_port = ports.api_base, ports.gcs
-        self.tcp_port_base = plan.tcp_port_base if plan.tcp_port_base is not None else ports.api_base
-        close_local: Callable[[], None] | None = None
-        extra = self._summary_extra
-        clock = self.clock
-        self._checkpoint = Checkpoint(
+        extra, clock = self._summary_extra, self.clock
+        checkpoint = Checkpoint(  # summary.json while the run runs; ``run`` is bound below, before the first write
             plan.out,
             lambda: (
                 RunResult(
-                    RunStatus.RUNNING,
-                    (phys.t_ns if phys is not None else 0) / NS_PER_S,
-                    (clock.now_ns() - wall0) / NS_PER_S,
-                    summaries,
-                    [],
+                    RunStatus.RUNNING, run.t_ns / NS_PER_S, (clock.now_ns() - wall0) / NS_PER_S, summaries, []
                 ).to_json()
                 | extra()
             ),
-            lambda: self._flush_recordings(world),
+            lambda: self._flush_recordings(run),
             clock=clock,
         )
-        self._checkpoint.write()
-        with (
-            ports,
-            Children(plan.out, clock=self.clock, fork_preload=swarm.MISSION_PRELOAD) as sup,
-        ):  # the block stays this run's until every process has stopped
-            try:
-                if plan.progress is not None:
-                    plan.progress(
-                        f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
-                        f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
-                    )
-                    if plan.gcs_port and self.gcs_port != plan.gcs_port:
-                        plan.progress(f"MAVLink: udp port {plan.gcs_port} is another harness run's ground station port")
-                    ardupilot = [i for i in range(plan.vehicles) if plan.firmware_of(i) is Firmware.ARDUPILOT]
-                    if ardupilot:
-                        step = plan.tcp_port_step
-                        plan.progress(
-                            f"MAVLink: ArduPilot vehicles {ardupilot} listen on tcp port {self.tcp_port_base}"
-                            + (f"+{step}*i" if step != 1 else "+i")
-                            + (f", and also send to udp {list(plan.gcs_extra_ports)}" if plan.gcs_extra_ports else "")
-                        )
-                if plan.on_view is not None and world.view is not None and world.view.grpc_url:
-                    plan.on_view(world.view.grpc_url)
-                # the children first: each takes a while to import and join, this process builds its share meanwhile
-                self._start_children(sup, channel.address, lambda: channel.pump(0.001))
-                own = [v for v in range(n) if v not in in_hosts]
-                jit.prefer(len(own) >= 2)  # numba's start-up pays back from two vehicles (harness.core.jit)
-                phys = Physics(physics_cfg, own)
-                if plan.autopilots == AutopilotPlacement.IN_PROCESS:
-                    close_local = self._local_autopilots(channel)
-                    world.attach_autopilots(self._aps)
-                hosts = 2 * len(self._autopilot_groups())  # each also has its clock (a type-1 connection)
-                expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
-                start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
-                if not channel.wait_for(lambda subs: _all_joined(subs, expected, sup), timeout_s=start_s):
-                    raise SimulationError(
-                        f"only {len(channel.subscribers())} of {expected} processes joined the channel within {start_s:g} s "
-                        f"(see the *.stderr files in {plan.out})"
-                    )
-                tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
-                # What start-up built (modules, JSBSim, autopilots, Rerun) lives to the end of the run: out of the
-                # cycle collector's sight while the loop runs, a full collection walks only what the loop made
-                # (at 100 vehicles one took 60-75 ms of CPU, 11 times in 30 s of sim). No result changes.
-                gc.freeze()
-                try:
-                    status, message, t_ns = self._loop(phys, channel, world, summaries, sup)
-                finally:
-                    gc.unfreeze()
-            except KeyboardInterrupt as exc:
-                status, message = RunStatus.INTERRUPTED, stop_reason(exc)
-                world.interrupted()
-            except SimulationError as exc:
-                status, message = RunStatus.FAILED, str(exc)
-                if isinstance(exc, RecordingError):
-                    lost.append(exc)
-            except Exception as exc:  # a bug must still stop every process and write the summary
-                log.exception("the run failed")
-                status, message = RunStatus.FAILED, f"internal error: {exc!r}"
-            finally:
-                channel.close("end of run")
-                if close_local is not None:  # first: the MAVLink thread would compete with the recorders' closing
-                    close_local()
-                world.close()
-            # a mission the channel saw only disconnect (os._exit, kill -9): its process says how it ended
-            settled = settle(channel.mission_exits, sup.procs, mission_process(plan), wait_s=2.0)
-        lost = first_per_file(lost + world.errors + self._log_errors())  # recordings that could not be completed
+        run = _Run(channel, world, sup, local, checkpoint, physics_cfg, in_hosts, summaries, settled, wall0)
+        checkpoint.write()
+        return run
+
+    def _start(self, run: _Run) -> None:
+        """Children first (each takes a while to import and join), this process's share of the physics and
+        its autopilots meanwhile; then every process and remote vehicle in the channel."""
+        plan = self.plan
+        n = plan.vehicles + plan.remote_vehicles
+        channel = run.channel
+        self._tell_ports(run.world)
+        self._start_children(run.sup, channel.address, lambda: channel.pump(0.001))
+        own = [v for v in range(n) if v not in run.in_hosts]
+        jit.prefer(len(own) >= 2)  # numba's start-up pays back from two vehicles (harness.core.jit)
+        run.phys = Physics(run.physics_cfg, own)
+        if plan.autopilots == AutopilotPlacement.IN_PROCESS:
+            run.aps, run.attached = self._local_autopilots(run.local)
+            run.world.attach_autopilots(run.aps)
+        hosts = 2 * len(self._autopilot_groups())  # each also has its clock (a type-1 connection)
+        expected = hosts + (1 if plan.network != NetworkKind.NONE else 0) + _mission_count(plan)
+        start_s = max(60.0, 2.0 * expected)  # a hundred processes importing MAVSDK on two busy cores
+        if not channel.wait_for(lambda subs: _all_joined(subs, expected, run.sup), timeout_s=start_s):
+            raise SimulationError(
+                f"only {len(channel.subscribers())} of {expected} processes joined the channel within {start_s:g} s "
+                f"(see the *.stderr files in {plan.out})"
+            )
+        tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
+
+    def _tell_ports(self, world: WorldTee) -> None:
+        """The progress lines of the MAVLink ports (and the live view's address) before anything starts."""
+        plan = self.plan
+        if plan.progress is not None:
+            plan.progress(
+                f"MAVLink: ground station on udp port {self.gcs_port}; vehicle i listens on udp port "
+                f"{self.api_port_base}+i (each mission's udpin://0.0.0.0:14540 is redirected there)"
+            )
+            if plan.gcs_port and self.gcs_port != plan.gcs_port:
+                plan.progress(f"MAVLink: udp port {plan.gcs_port} is another harness run's ground station port")
+            ardupilot = [i for i in range(plan.vehicles) if plan.firmware_of(i) is Firmware.ARDUPILOT]
+            if ardupilot:
+                step = plan.tcp_port_step
+                plan.progress(
+                    f"MAVLink: ArduPilot vehicles {ardupilot} listen on tcp port {self.tcp_port_base}"
+                    + (f"+{step}*i" if step != 1 else "+i")
+                    + (f", and also send to udp {list(plan.gcs_extra_ports)}" if plan.gcs_extra_ports else "")
+                )
+        if plan.on_view is not None and world.view is not None and world.view.grpc_url:
+            plan.on_view(world.view.grpc_url)
+
+    def _result(self, run: _Run) -> RunResult:
+        """The run's result, written to ``summary.json``: its status, then each mission's end, the faults the
+        channel saw (but not of missions whose process said how they ended), a crash, recordings lost."""
+        plan = self.plan
+        channel, summaries = run.channel, run.summaries
+        status, message = run.status, run.message
+        lost = first_per_file(run.lost + run.world.errors + run.log_errors())  # recordings that could not be completed
         if lost:
             status, message = RunStatus.FAILED, lost_message(lost)
-        wall_s = (self.clock.now_ns() - wall0) / NS_PER_S
-        t_ns = phys.t_ns if phys is not None else 0
+        wall_s = (self.clock.now_ns() - run.wall0) / NS_PER_S
+        t_ns = run.t_ns
         exits = {e.vehicle: e for e in channel.mission_exits}
         swarm_end = swarm.swarm_exit(channel.mission_exits)
         tree.fill_remote(summaries, channel.mission_exits, plan.vehicles)
@@ -237,24 +293,20 @@ class Launcher:
                         if e is None
                         else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
-        faults = [f.__dict__ for f in channel.faults if f.peer not in settled]
+        faults = [f.__dict__ for f in channel.faults if f.peer not in run.settled]
         if any(s.crashed for s in summaries) and status == RunStatus.OK:
             status, message = RunStatus.FAILED, "a vehicle crashed"
         result = RunResult(status, t_ns / NS_PER_S, wall_s, summaries, faults, message, [str(e.path) for e in lost])
         write_summary(plan.out, result, self._summary_extra())
         return result
 
-    def _flush_recordings(self, world: WorldTee) -> None:
+    def _flush_recordings(self, run: _Run) -> None:
         """Every second: ``world.mcap``'s chunk in progress to disk, and a log that could not be written stops
         the run (:class:`RecordingError`, naming the file)."""
-        world.flush_mcap()
-        lost = self._log_errors()
+        run.world.flush_mcap()
+        lost = run.log_errors()
         if lost:
             raise lost[0]
-
-    def _log_errors(self) -> list[RecordingError]:
-        """The vehicles' logs in this process (tlogs, ULogs) that could not be written."""
-        return [RecordingError.of(path, exc) for handle in self._attached for path, exc in handle.write_errors()]
 
     def _summary_extra(self) -> dict[str, Any]:
         plan = self.plan
@@ -274,9 +326,10 @@ class Launcher:
         else:
             self.paused.set()
 
-    def _local_autopilots(self, channel: Channel) -> Callable[[], None]:
-        """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process; returns what
-        closes their MAVLink side."""
+    def _local_autopilots(self, local: contextlib.ExitStack) -> tuple[dict[int, Autopilot], list[AttachedMavlink]]:
+        """Autopilots (and their MAVLink servers, tlogs, stored parameters) inside this process, by vehicle, and
+        their MAVLink sides; what closes those is on ``local`` from the start (a vehicle that cannot bind its port
+        leaves the others' closed)."""
         from harness.autopilot.autopilot import Autopilot, AutopilotConfig
         from harness.autopilot.mavlink.hub import MavlinkHub
         from harness.autopilot.mavlink.personality import core_param_defaults
@@ -304,7 +357,8 @@ class Launcher:
         )
         signing, trust = run_signing(plan.signing_key_file, os.getpid())  # unsigned: only this run's processes
         hub = MavlinkHub(name="mavlink", clock=self.clock)  # one wall-clock thread serves every vehicle
-        attached: list[Any] = []
+        attached: list[AttachedMavlink] = []
+        local.callback(close_mavlink, hub, attached)
         try:
             for i, ap in aps.items():
                 fw = plan.firmware_of(i)
@@ -312,18 +366,12 @@ class Launcher:
                     ports, fw, self.tcp_port_base, plan.tcp_port_step, plan.gcs_extra_ports, self._tcp_sim_clients
                 )
                 attached.append(attach_mavlink(ap, vp, plan.out, signing, hub, fw, trust))
-        except Exception as exc:
-            close_mavlink(hub, attached)
-            if isinstance(exc, ScenarioError):  # a port taken by another simulator: one line, not a traceback
-                raise SimulationError(str(exc)) from None
-            raise
+        except ScenarioError as exc:  # a port taken by another simulator: one line, not a traceback
+            raise SimulationError(str(exc)) from None
         hub.start()  # once every server is in: an add to a running hub waits for its thread
+        return aps, attached  # stepped by the channel through NativeLink, with the frame objects themselves
 
-        self._aps = aps  # stepped by the channel through NativeLink, with the frame objects themselves
-        self._attached = attached
-        return lambda: close_mavlink(hub, attached)
-
-    def _start_children(self, sup: Any, address: str, pump: Callable[[], None] = lambda: None) -> None:
+    def _start_children(self, sup: Children, address: str, pump: Callable[[], None] = lambda: None) -> None:
         """Start the run's processes; ``pump`` between missions answers the handshakes of those already up
         (100 process starts take long enough on a busy machine for the first ones' handshakes to time out)."""
         plan = self.plan
@@ -353,23 +401,12 @@ class Launcher:
             config_file.write_bytes(config.to_json())
             sup.start(name, [_python(), "-m", "harness.autopilot.sitl", "--config", str(config_file)], env=env)
         if plan.network != NetworkKind.NONE:
-            sup.start(
-                "network",
-                [
-                    _python(),
-                    "-m",
-                    "harness.net.subscriber",
-                    "--address",
-                    address,
-                    "--model",
-                    plan.network,
-                    "--seed",
-                    str(plan.seed),
-                    "--params",
-                    json.dumps(plan.network_params),
-                ],
-                env=env,
+            network = NetworkProcessConfig(
+                address=address, model=plan.network, seed=plan.seed, params=plan.network_params, run_dir=str(plan.out)
             )
+            config_file = plan.out / "network.json"
+            config_file.write_bytes(network.to_json())
+            sup.start("network", [_python(), "-m", "harness.net.subscriber", "--config", str(config_file)], env=env)
         forked = _mission_count(plan) > 1  # one fork server imports for them all (one: it would only add a hop)
         for i, m in enumerate(plan.missions[: plan.vehicles]):
             if m is None:
@@ -406,16 +443,24 @@ class Launcher:
     def _tcp_port(self, vehicle: int) -> int:
         return self.tcp_port_base + self.plan.tcp_port_step * vehicle
 
-    def _loop(
-        self, phys: Any, channel: Channel, world: WorldSink, summaries: list[VehicleSummary], sup: Any
-    ) -> tuple[RunStatus, str, int]:
+    def _loop(self, run: _Run) -> None:
+        """The ticks, until the duration is reached or every mission has ended (a failure raises)."""
         plan = self.plan
+        phys, channel, world, summaries, sup, checkpoint = (
+            run.phys,
+            run.channel,
+            run.world,
+            run.summaries,
+            run.sup,
+            run.checkpoint,
+        )
+        assert phys is not None and checkpoint is not None
         n = plan.vehicles + plan.remote_vehicles
         record_every = max(1, round(plan.tick_hz / plan.record_hz))
         end_ns = None if plan.duration_s is None else round(plan.duration_s * NS_PER_S)
         missions = _mission_count(plan)
         frames = phys.frames()
-        link = NativeLink(channel, self._aps)
+        link = NativeLink(channel, run.aps)
         paused_once = False
         wall0 = self.clock.now_ns()
         pacer = Pacer(plan.speed, wall0) if plan.speed is not None else None
@@ -431,7 +476,7 @@ class Launcher:
             if (end_ns is not None and t_ns >= end_ns) or tree.missions_done(channel, missions, plan.vehicles):
                 if pacer is not None:
                     self._pacing = _pacing(pacer, t_ns, wall0, self.clock.now_ns())
-                return RunStatus.OK, "", t_ns
+                return
             if plan.pause_at_s is not None and not paused_once and t_ns >= plan.pause_at_s * NS_PER_S:
                 paused_once = True
                 self.paused.set()
@@ -454,7 +499,7 @@ class Launcher:
             phase = tick % plan.phase_every == 0
             etas = link.exchange(t_ns, tick, frames, elsewhere if phase else None)
             now = self.clock.now_ns()
-            truth: list[Any] = [None] * n  # the hosts' vehicles: once they report
+            truth: list[p.TruthLike | None] = [None] * n  # the hosts' vehicles: once they report
             for f in frames:
                 truth[f.vehicle] = f.truth
             row = Row(tick, t_ns, (now - wall0) / NS_PER_S, (now - tick_start) / 1e3, truth, [()] * n, [0] * n)
@@ -477,8 +522,7 @@ class Launcher:
                 for name, code in sup.poll_exits():
                     if name.startswith("autopilot") or name == "network":
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
-            if self._checkpoint is not None:
-                self._checkpoint.maybe()
+            checkpoint.maybe()
             if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
                 last_progress = self.clock.now_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
