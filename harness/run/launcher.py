@@ -130,29 +130,42 @@ class Launcher:
     def run(self) -> RunResult:
         """The run context (every resource on one ExitStack, released in reverse order however the run ends),
         start-up, the tick loop, then the result and ``summary.json`` once every process is gone."""
-        with contextlib.ExitStack() as stack:
-            run = self._open(stack)
-            try:
-                self._start(run)
-                # What start-up built (modules, JSBSim, autopilots, Rerun) lives to the end of the run: out of the
-                # cycle collector's sight while the loop runs, a full collection walks only what the loop made
-                # (at 100 vehicles one took 60-75 ms of CPU, 11 times in 30 s of sim). No result changes.
-                gc.freeze()
-                try:
-                    self._loop(run)
-                finally:
-                    gc.unfreeze()
-            except KeyboardInterrupt as exc:
-                run.status, run.message = RunStatus.INTERRUPTED, stop_reason(exc)
-                run.world.interrupted()
-            except SimulationError as exc:
-                run.status, run.message = RunStatus.FAILED, str(exc)
-                if isinstance(exc, RecordingError):
-                    run.lost.append(exc)
-            except Exception as exc:  # a bug must still stop every process and write the summary
-                log.exception("the run failed")
-                run.status, run.message = RunStatus.FAILED, f"internal error: {exc!r}"
+        run: _Run | None = None
+        try:
+            with contextlib.ExitStack() as stack:
+                run = self._open(stack)
+                self._fly(run)
+        except Exception as exc:
+            if run is None:  # nothing started (a port taken, a bad plan): the caller says so in one line
+                raise
+            # a resource that failed to close: the stack released every other one all the same
+            log.exception("closing the run failed")
+            if run.status is RunStatus.OK:
+                run.status, run.message = RunStatus.FAILED, f"internal error while closing the run: {exc!r}"
         return self._result(run)
+
+    def _fly(self, run: _Run) -> None:
+        """Start-up and the tick loop; how they ended goes into ``run.status`` (the run context stays open)."""
+        try:
+            self._start(run)
+            # What start-up built (modules, JSBSim, autopilots, Rerun) lives to the end of the run: out of the
+            # cycle collector's sight while the loop runs, a full collection walks only what the loop made
+            # (at 100 vehicles one took 60-75 ms of CPU, 11 times in 30 s of sim). No result changes.
+            gc.freeze()
+            try:
+                self._loop(run)
+            finally:
+                gc.unfreeze()
+        except KeyboardInterrupt as exc:
+            run.status, run.message = RunStatus.INTERRUPTED, stop_reason(exc)
+            run.world.interrupted()
+        except SimulationError as exc:
+            run.status, run.message = RunStatus.FAILED, str(exc)
+            if isinstance(exc, RecordingError):
+                run.lost.append(exc)
+        except Exception as exc:  # a bug must still stop every process and write the summary
+            log.exception("the run failed")
+            run.status, run.message = RunStatus.FAILED, f"internal error: {exc!r}"
 
     def _open(self, stack: contextlib.ExitStack) -> _Run:
         """The run's resources, each on ``stack`` as soon as it exists, so that they are released in this

@@ -97,3 +97,31 @@ def test_a_finished_run_releases_everything_in_the_same_order(tmp_path: Path, mo
     result = Launcher(_plan(tmp_path)).run()
     assert result.status == RunStatus.OK and result.sim_time_s == pytest.approx(1.0)
     assert order == RELEASE_ORDER
+
+
+def test_a_resource_that_fails_to_close_still_releases_the_rest_and_writes_the_summary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A closer that raises (a bug in one vehicle's MAVLink side, say): every other resource is released all the
+    same, no process is left, and the run ends failed with a summary that says why (before: no summary at all)."""
+    order = _record_releases(monkeypatch)
+    close = sitl.close_mavlink
+    stopped: list[Children] = []
+    stop = Children.stop
+
+    def failing_close(*args: object, **kwargs: object) -> None:
+        close(*args, **kwargs)  # type: ignore[arg-type]
+        raise RuntimeError("the MAVLink side could not close")
+
+    def stop_and_keep(self: Children, *args: object, **kwargs: object) -> object:
+        stopped.append(self)
+        return stop(self, *args, **kwargs)
+
+    monkeypatch.setattr(sitl, "close_mavlink", failing_close)
+    monkeypatch.setattr(Children, "stop", stop_and_keep)
+    result = Launcher(_plan(tmp_path)).run()
+    assert result.status == RunStatus.FAILED and "could not close" in result.message
+    assert order == RELEASE_ORDER  # the failing closer ran, and everything after it too
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["status"] == "failed" and "could not close" in summary["message"]
+    assert stopped and all(p.poll() is not None for c in stopped for p in c.procs.values())
