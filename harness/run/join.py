@@ -110,28 +110,33 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
     channel = _connect(plan, clock)
     message = ""
     last = plan.indices[-1]
-    with allocate(last + 1, PX4_API_BASE) as ports, Children(plan.out, clock=clock) as sup:
-        try:
-            env = tree.secret_env(
-                dict(os.environ, HARNESS_CHANNEL=channel.address, HARNESS_RUN_DIR=str(plan.out)), plan.secret
-            )
-            missions = _start_missions(plan, sup, channel.address, env, ports.api_base)
-            _wait(
-                lambda: len(channel.subscribers()) >= missions,
-                60.0,
-                f"only some of the {missions} missions started (see {plan.out}/*.stderr)",
-                clock,
-            )
-            sup.start("autopilot", _autopilot_argv(plan, channel.address, ports.api_base, ports.gcs), env=env)
-            if plan.progress is not None:
-                plan.progress(f"joined {plan.parent} as {channel.config.name}: vehicles {plan.first_vehicle}-{last}")
-            message = _supervise(channel, sup)
-        except KeyboardInterrupt as exc:
-            message = stop_reason(exc)
-        except SimulationError as exc:
-            message = str(exc)
-        finally:
-            channel.stop()
+    try:
+        with allocate(last + 1, PX4_API_BASE) as ports, Children(plan.out, clock=clock) as sup:
+            try:
+                env = tree.secret_env(
+                    dict(os.environ, HARNESS_CHANNEL=channel.address, HARNESS_RUN_DIR=str(plan.out)), plan.secret
+                )
+                missions = _start_missions(plan, sup, channel.address, env, ports.api_base)
+                _wait(
+                    lambda: len(channel.subscribers()) >= missions,
+                    60.0,
+                    f"only some of the {missions} missions started (see {plan.out}/*.stderr)",
+                    clock,
+                )
+                sup.start("autopilot", _autopilot_argv(plan, channel.address, ports.api_base, ports.gcs), env=env)
+                if plan.progress is not None:
+                    plan.progress(
+                        f"joined {plan.parent} as {channel.config.name}: vehicles {plan.first_vehicle}-{last}"
+                    )
+                message = _supervise(channel, sup)
+            except KeyboardInterrupt as exc:
+                message = stop_reason(exc)
+            except SimulationError as exc:
+                message = str(exc)
+            finally:
+                channel.stop()
+    finally:  # the ports or the supervisor failed before the block: the joined channel stops all the same
+        channel.stop()
     exits = {e.vehicle: e.exit_code for e in channel.mission_exits}
     return JoinResult({i: exits.get(i) for i, m in zip(plan.indices, plan.missions, strict=False) if m}, message)
 
