@@ -24,6 +24,9 @@ after changing one).
 Only the modules that step autopilots or sensors import this one: ``import numba`` and loading the kernels
 cost a few tenths of a second of CPU per process.
 
+Where mypyc's compiled core runs (``harness.core.native``) the kernels' modules are C extensions and numba is
+not used, whatever ``HARNESS_JIT`` says.
+
 ``HARNESS_JIT=0`` in the environment: numba is not imported and the kernels run as the plain Python functions
 they are, over lists instead of arrays (``floats``), with the same results to the bit. For a process that
 steps a single vehicle for a short flight that is cheaper than numba's start-up.
@@ -40,10 +43,14 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
+from harness.core import native
+
 F = TypeVar("F", bound=Callable[..., Any])
 
-ENABLED = os.environ.get("HARNESS_JIT", "1") != "0"
-"""Whether kernels are compiled (``HARNESS_JIT``, read at import; ``prefer`` may change it before any kernel)."""
+ENABLED = os.environ.get("HARNESS_JIT", "1") != "0" and not native.ACTIVE
+"""Whether kernels are compiled (``HARNESS_JIT``, read at import; ``prefer`` may change it before any kernel).
+Never when the compiled core runs (``harness.core.native.ACTIVE``): mypyc has compiled the kernels' modules,
+their functions are machine code already (and numba cannot read them)."""
 
 _made = False
 
@@ -55,7 +62,7 @@ def prefer(compiled: bool) -> bool:
     numba's start-up (≈ 0.4 s of CPU) pays back from about two vehicles in a process; a process stepping one
     vehicle prefers plain Python."""
     global ENABLED
-    if "HARNESS_JIT" not in os.environ and not _made:
+    if "HARNESS_JIT" not in os.environ and not _made and not native.ACTIVE:
         ENABLED = compiled
     return ENABLED
 
