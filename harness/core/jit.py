@@ -39,13 +39,18 @@ import logging
 import os
 import tempfile
 from collections.abc import Callable
-from typing import Any, TypeVar, cast
+from typing import Any, TypeAlias, TypeVar, cast
 
 import numpy as np
 
 from harness.core import native
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+Floats: TypeAlias = list[float]
+"""The type of a kernel's state or gains parameter (``floats``): numba compiles it as a float64 array, mypy and
+mypyc (``harness.core.native``) see the list of floats it is where kernels are not numba-compiled, so that
+mypyc's code indexes a list and does C double arithmetic instead of generic object arithmetic."""
 
 ENABLED = os.environ.get("HARNESS_JIT", "1") != "0" and not native.ACTIVE
 """Whether kernels are compiled (``HARNESS_JIT``, read at import; ``prefer`` may change it before any kernel).
@@ -86,7 +91,13 @@ def _signature(fn: Callable[..., Any]) -> tuple[Any, ...]:
     import numba
 
     # the numba type of each annotation a kernel's parameter may have (arrays: float64, 1-D, C-contiguous)
-    by_name = {"float": numba.float64, "bool": numba.boolean, "int": numba.int64, "np.ndarray": numba.float64[::1]}
+    by_name = {
+        "float": numba.float64,
+        "bool": numba.boolean,
+        "int": numba.int64,
+        "np.ndarray": numba.float64[::1],
+        "Floats": numba.float64[::1],
+    }
     types = []
     for p in inspect.signature(fn, eval_str=False).parameters.values():
         t = by_name.get(str(p.annotation))

@@ -40,6 +40,7 @@ from pathlib import Path
 from types import ModuleType
 
 MODULES: tuple[str, ...] = (
+    "harness.core.geo",
     "harness.autopilot.mathutil",
     "harness.autopilot.battery",
     "harness.autopilot.inner",
@@ -47,12 +48,19 @@ MODULES: tuple[str, ...] = (
     "harness.autopilot.estimator",
     "harness.autopilot.navigator",
     "harness.autopilot.supervisor",
+    "harness.autopilot.trajectory",
     "harness.autopilot.flight",
+    "harness.autopilot.manual",
+    "harness.autopilot.snapshot",
+    "harness.autopilot.autopilot",
     "harness.fdm.imu",
     "harness.fdm.sensors",
+    "harness.fdm.physics",
 )
-"""The compiled modules: the autopilot's flight core (the per-tick cascade, estimator, navigator, supervisor,
-battery) and the sensor model. Each must stay mypyc-compatible: no monkey-patching of its classes or
+"""The compiled modules: the autopilot's per-tick path (the flight core: cascade, estimator, navigator and its
+trajectories, supervisor, battery; the manual-control and state-snapshot stages and ``Autopilot.step``
+around them), the sensor model and the physics wrapper around JSBSim, and the quaternion/geodesy helpers
+they all call. Each must stay mypyc-compatible: no monkey-patching of its classes or
 functions, attributes declared."""
 
 GROUP = "harness._native"
