@@ -35,7 +35,7 @@ import json
 import logging
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
 
@@ -82,15 +82,17 @@ def digests(package_dir: Path = PACKAGE_DIR) -> dict[str, str]:
     return {m: hashlib.sha256(source_of(m, package_dir).read_bytes()).hexdigest() for m in MODULES}
 
 
-def _decide() -> tuple[bool, str]:
-    """(whether the compiled modules run, why)."""
-    if os.environ.get("HARNESS_PURE", "0") not in ("", "0"):
+def decide(
+    environ: Mapping[str, str] = os.environ, manifest: Path = MANIFEST, package_dir: Path = PACKAGE_DIR
+) -> tuple[bool, str]:
+    """(whether the compiled modules run, why): see the module docstring."""
+    if environ.get("HARNESS_PURE", "0") not in ("", "0"):
         return False, "HARNESS_PURE is set"
     try:
-        built = json.loads(MANIFEST.read_text())["modules"]
+        built = json.loads(manifest.read_text())["modules"]
     except (OSError, ValueError, KeyError, TypeError):
         return False, "not built"
-    now = digests()
+    now = digests(package_dir)
     stale = sorted(m for m in MODULES if built.get(m) != now[m])
     if stale:
         _log.warning(
@@ -118,7 +120,7 @@ class _Sources(importlib.abc.MetaPathFinder):
 
 
 _NAMES = frozenset(MODULES)
-ACTIVE, REASON = _decide()
+ACTIVE, REASON = decide()
 """Whether this process runs the compiled modules, and why (or why not)."""
 
 
