@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -60,8 +61,8 @@ def test_compiled_and_pure_python_fly_the_same_bits() -> None:
     if native.decide(environ={})[0]:
         compiled = _fly()
         assert compiled == [pure[0], "[True] False"]  # every module compiled, numba not used
-    elif os.environ.get("CI") == "true" and os.environ.get("HARNESS_PURE", "0") in ("", "0"):
-        pytest.fail(f"CI: the compiled core is not in use ({native.REASON}); dev.py builds it")
+    elif os.environ.get("CI") == "true" and os.environ.get("HARNESS_PURE", "0") in ("", "0") and shutil.which("cc"):
+        pytest.fail(f"CI, with a C compiler: the compiled core is not in use ({native.REASON}); dev.py builds it")
 
 
 def _build(tmp_path: Path) -> tuple[Path, Path]:
