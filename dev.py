@@ -56,6 +56,10 @@ def setup(extras: str) -> None:
         return
     sh(PY, "-m", "pip", "install", "-q", "--upgrade", "pip")
     sh(PY, "-m", "pip", "install", "-q", "-e", f".[{extras}]" if extras else ".")
+    if (ROOT / "harness" / "_native.json").is_file():
+        print("the per-vehicle core is compiled (mypyc, harness/core/native.py); HARNESS_PURE=1 runs it as Python")
+    else:
+        print("the per-vehicle core is not compiled (no C compiler, or its build failed): pure Python, same results")
     if "dev" in extras.split(","):
         # The MAVProxy test: MAVProxy's console needs only what the dev extra lists (pymavlink, pyserial,
         # defusedxml, pynmeagps); its declared opencv/vtk/matplotlib serve map and 3-D modules we do not load.

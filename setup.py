@@ -11,6 +11,7 @@ once.
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import json
 import logging
@@ -22,7 +23,7 @@ import sysconfig
 from pathlib import Path
 from typing import Any
 
-from setuptools import setup
+from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
 ROOT = Path(__file__).resolve().parent
@@ -51,6 +52,7 @@ def _compiler() -> str | None:
     return shutil.which(exe)
 
 
+@functools.cache  # setuptools sets up build_ext more than once per build: mypyc runs (and this speaks) once
 def _extensions() -> list[Any]:
     if os.environ.get("HARNESS_PURE", "0") not in ("", "0"):
         _say("HARNESS_PURE is set: the per-vehicle core is not compiled (pure Python)")
@@ -77,8 +79,13 @@ def _extensions() -> list[Any]:
 
 
 class BuildNative(build_ext):
-    """build_ext that records what it compiled (``harness/_native.json``) and falls back to pure Python when
-    the compile fails."""
+    """build_ext that runs mypyc (when the command is set up, not when setup.py is loaded: pip loads it three
+    times per install),
+    records what it compiled (``harness/_native.json``) and falls back to pure Python when the compile fails."""
+
+    def finalize_options(self) -> None:
+        self.distribution.ext_modules = list(_extensions())
+        super().finalize_options()
 
     def run(self) -> None:
         if not self.extensions:
@@ -102,4 +109,5 @@ class BuildNative(build_ext):
         return [*super().get_outputs(), str(self._manifest())] if self.extensions else super().get_outputs()
 
 
-setup(ext_modules=_extensions(), cmdclass={"build_ext": BuildNative})
+# A stand-in until build_ext runs mypyc: the package has extension modules (a platform wheel, build_ext runs)
+setup(ext_modules=[Extension(f"{NATIVE.GROUP}__mypyc", sources=[])], cmdclass={"build_ext": BuildNative})
