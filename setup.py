@@ -12,6 +12,7 @@ once.
 from __future__ import annotations
 
 import functools
+import importlib.machinery
 import importlib.util
 import json
 import logging
@@ -78,6 +79,20 @@ def _extensions() -> list[Any]:
     return list(exts)
 
 
+def _drop_leftovers() -> None:
+    """Delete the in-place extensions of modules an earlier build compiled and this one does not (harness would
+    not import them, but they would confuse whoever lists the tree)."""
+    keep = {*NATIVE.MODULES, f"{NATIVE.GROUP}__mypyc"}
+    suffixes = tuple(importlib.machinery.EXTENSION_SUFFIXES)
+    for path in (ROOT / "harness").rglob("*"):
+        if path.name.endswith(suffixes):
+            name = path.name[: -len(next(s for s in suffixes if path.name.endswith(s)))]
+            module = ".".join((*path.relative_to(ROOT).parent.parts, name))
+            if module not in keep:
+                path.unlink()
+                _say(f"removed {path.relative_to(ROOT)}: no longer compiled")
+
+
 class BuildNative(build_ext):
     """build_ext that runs mypyc (when the command is set up, not when setup.py is loaded: pip loads it three
     times per install),
@@ -96,6 +111,8 @@ class BuildNative(build_ext):
             _say(f"compiling the per-vehicle core failed ({e}): pure Python")
             self._manifest().unlink(missing_ok=True)
             return
+        if self.inplace or getattr(self, "editable_mode", False):
+            _drop_leftovers()
         manifest = self._manifest()
         manifest.parent.mkdir(parents=True, exist_ok=True)
         manifest.write_text(json.dumps({"modules": NATIVE.digests(ROOT / "harness")}, indent=1, sort_keys=True))

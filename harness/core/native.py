@@ -14,7 +14,8 @@ so every harness process decides here, when ``harness`` is imported, which of th
 
 It is all or nothing: compiled modules call each other directly (one shared library), so one stale module
 makes the whole build stale. Refusing an extension is a finder at the front of ``sys.meta_path`` that gives
-these module names their source files.
+harness module names their source files (all but ``MODULES`` when the build is in use: an extension left
+by an earlier build of a module since dropped from ``MODULES`` is never imported).
 
 Both run the same IEEE double arithmetic in the order written (the C code is built with
 ``-ffp-contract=off``: no fused multiply-add), and the same libm: the same inputs give the same bits
@@ -105,12 +106,15 @@ def decide(
 
 
 class _Sources(importlib.abc.MetaPathFinder):
-    """Gives the compiled modules their ``.py`` source, so that an extension beside it is not imported."""
+    """Gives every harness module that has a ``.py`` its source, so that an extension beside it is not
+    imported, except the compiled modules of a build in use (``ACTIVE``). That covers the extension left
+    behind by an earlier build of a module no longer in ``MODULES`` too (it would load the old code, or fail
+    against the new shared library)."""
 
     def find_spec(
         self, fullname: str, path: Sequence[str] | None, target: ModuleType | None = None
     ) -> importlib.machinery.ModuleSpec | None:
-        if fullname not in _NAMES or not path:
+        if not path or not fullname.startswith("harness.") or (ACTIVE and fullname in _NAMES):
             return None
         for folder in path:
             src = os.path.join(folder, fullname.rpartition(".")[2] + ".py")
@@ -125,9 +129,9 @@ ACTIVE, REASON = decide()
 
 
 def install() -> None:
-    """Called once by ``harness/__init__.py``: when the compiled modules are not to run, make the imports of
-    ``MODULES`` take their sources."""
-    if not ACTIVE and not any(isinstance(f, _Sources) for f in sys.meta_path):
+    """Called once by ``harness/__init__.py``: every harness module is imported from its source but the
+    compiled ``MODULES`` when ``ACTIVE``."""
+    if not any(isinstance(f, _Sources) for f in sys.meta_path):
         sys.meta_path.insert(0, _Sources())
 
 

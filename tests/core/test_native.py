@@ -87,3 +87,13 @@ def test_a_build_runs_only_while_its_sources_are_unchanged(tmp_path: Path, caplo
     with caplog.at_level(logging.WARNING, logger=native.__name__):
         assert native.decide({}, manifest, pkg) == (False, "stale: harness.autopilot.control")
     assert len(caplog.records) == 1 and "harness.autopilot.control changed since the build" in caplog.text
+
+
+def test_a_harness_module_outside_the_build_is_always_its_source() -> None:
+    # an extension an earlier build left beside it (a module since dropped from MODULES) is never imported
+    import harness.channel.machine
+    import harness.run.launcher
+
+    assert "harness.channel.machine" not in native.MODULES
+    assert harness.channel.machine.__file__ and harness.channel.machine.__file__.endswith(".py")
+    assert harness.run.launcher.__file__ and harness.run.launcher.__file__.endswith(".py")
