@@ -12,6 +12,8 @@ Both are idempotent: the virtual environment in .venv is reused once it is up to
 from __future__ import annotations
 
 import hashlib
+import importlib.util
+import logging
 import os
 import shutil
 import subprocess
@@ -31,17 +33,33 @@ def sh(*cmd: str | Path, check: bool = True) -> int:
     return subprocess.run([str(c) for c in cmd], cwd=ROOT, check=check).returncode
 
 
+def native_sources() -> bytes:
+    """setup.py and the sources mypyc compiles (``harness.core.native.MODULES``, read by path: the package may not
+    be installed): when one changes, the install is redone, so the compiled modules are rebuilt (a stale
+    build would run as pure Python, slower, with a warning)."""
+    spec = importlib.util.spec_from_file_location("_harness_native", ROOT / "harness" / "core" / "native.py")
+    assert spec is not None and spec.loader is not None
+    native = importlib.util.module_from_spec(spec)
+    logging.getLogger("_harness_native").setLevel(logging.ERROR)  # its stale-build warning is this one's job
+    spec.loader.exec_module(native)
+    return (ROOT / "setup.py").read_bytes() + "".join(sorted(native.digests().values())).encode()
+
+
 def setup(extras: str) -> None:
     if sys.version_info < (3, 11):  # noqa: UP036 - dev.py runs under whatever python3 the machine has
         sys.exit(f"uav-harness needs Python >= 3.11, this is {sys.version.split()[0]}")
     if not PY.exists():
         venv.EnvBuilder(with_pip=True).create(VENV)
     stamp = VENV / f".installed-{extras.replace(',', '-') or 'base'}"
-    digest = hashlib.sha256((ROOT / "pyproject.toml").read_bytes() + MAVPROXY.encode()).hexdigest()
+    digest = hashlib.sha256((ROOT / "pyproject.toml").read_bytes() + MAVPROXY.encode() + native_sources()).hexdigest()
     if stamp.exists() and stamp.read_text() == digest:
         return
     sh(PY, "-m", "pip", "install", "-q", "--upgrade", "pip")
     sh(PY, "-m", "pip", "install", "-q", "-e", f".[{extras}]" if extras else ".")
+    if (ROOT / "harness" / "_native.json").is_file():
+        print("the per-vehicle core is compiled (mypyc, harness/core/native.py); HARNESS_PURE=1 runs it as Python")
+    else:
+        print("the per-vehicle core is not compiled (no C compiler, or its build failed): pure Python, same results")
     if "dev" in extras.split(","):
         # The MAVProxy test: MAVProxy's console needs only what the dev extra lists (pymavlink, pyserial,
         # defusedxml, pynmeagps); its declared opencv/vtk/matplotlib serve map and 3-D modules we do not load.

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import tempfile
 import time
 from collections import defaultdict
@@ -26,6 +27,7 @@ from harness.autopilot.autopilot import Autopilot, AutopilotConfig
 from harness.autopilot.estimator import Estimator
 from harness.autopilot.flight import FlightCore
 from harness.autopilot.flightlog import FlightLog
+from harness.core import native
 from harness.fdm.environment import WindConfig
 from harness.fdm.physics import Physics, PhysicsConfig
 from harness.fdm.sensors import SensorModel
@@ -123,6 +125,11 @@ def main() -> None:
     ap.add_argument("--vehicles", type=int, default=10)
     ap.add_argument("--seconds", type=float, default=10.0, help="measured sim seconds of hover")
     args = ap.parse_args()
+    if native.ACTIVE:
+        sys.exit(
+            "bench_pertick.py wraps methods of classes that are compiled here (harness.core.native): run it with "
+            "HARNESS_PURE=1 (the pure-Python core), or benchmarks/bench_core.py for the compiled one"
+        )
     r = measure(args.vehicles, args.seconds)
     hovering = r.pop("hovering vehicles")
     print(f"{args.vehicles} vehicles ({hovering:.0f} hovering), {args.seconds:g} s of sim; median µs per vehicle-tick")

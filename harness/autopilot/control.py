@@ -14,12 +14,10 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
 from harness.core.geo import Quat
-from harness.core.jit import callee, compiled, floats, kernel
+from harness.core.jit import Floats, callee, compiled, floats, kernel
 
 NAN = math.nan
 
@@ -63,8 +61,8 @@ _IX, _IY, _IZ, _ACC_Z, _HOVER = range(5)
 
 @kernel
 def position_step(
-    g: np.ndarray,
-    s: np.ndarray,
+    g: Floats,
+    s: Floats,
     spx: float,
     spy: float,
     spz: float,
@@ -157,7 +155,7 @@ def position_step(
 
 
 @kernel
-def change_hover(s: np.ndarray, hover: float) -> None:
+def change_hover(s: Floats, hover: float) -> None:
     """Hover thrust ``hover`` in the position state ``s``, the vertical integrator moved so that the thrust
     output stays continuous (as PX4's updateHoverThrust)."""
     old = s[_HOVER]

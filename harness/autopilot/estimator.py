@@ -20,12 +20,10 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from harness.autopilot.mathutil import G_M_S2
 from harness.autopilot.params import Params
 from harness.core.geo import GeoRef, quat_from_euler
-from harness.core.jit import compiled, floats, kernel
+from harness.core.jit import Floats, compiled, floats, kernel
 from harness.fdm.frame import Gps, SensorFrame
 
 _HIST = 64
@@ -37,8 +35,8 @@ GPS_CHECK_NS = 10_000_000_000
 
 @kernel
 def predict(
-    s: np.ndarray,
-    g: np.ndarray,
+    s: Floats,
+    g: Floats,
     att: bool,
     slow: bool,
     w: float,

@@ -11,11 +11,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from harness.autopilot.params import Params
 from harness.core.geo import Quat
-from harness.core.jit import callee, floats, kernel
+from harness.core.jit import Floats, callee, floats, kernel
 
 # ---- attitude control ----
 # gains g: MC_ROLL_P, MC_PITCH_P, MC_YAW_P, MC_YAW_WEIGHT, max roll, pitch, yaw rate (rad/s)
@@ -23,7 +21,7 @@ from harness.core.jit import callee, floats, kernel
 
 @callee
 def attitude_rates(
-    g: np.ndarray,
+    g: Floats,
     w: float,
     x: float,
     y: float,
@@ -127,8 +125,8 @@ class AttitudeControl:
 
 @callee
 def rate_pid(
-    g: np.ndarray,
-    s: np.ndarray,
+    g: Floats,
+    s: Floats,
     sp0: float,
     sp1: float,
     sp2: float,
@@ -328,9 +326,9 @@ def thrust_model(m: float, fac: float) -> float:
 # ---- the per-tick cascade in one call ----
 @kernel
 def inner_loop(
-    att_g: np.ndarray,
-    rate_g: np.ndarray,
-    rate_s: np.ndarray,
+    att_g: Floats,
+    rate_g: Floats,
+    rate_s: Floats,
     use_att: bool,
     w: float,
     x: float,

@@ -24,6 +24,9 @@ after changing one).
 Only the modules that step autopilots or sensors import this one: ``import numba`` and loading the kernels
 cost a few tenths of a second of CPU per process.
 
+Where mypyc's compiled core runs (``harness.core.native``) the kernels' modules are C extensions and numba is
+not used, whatever ``HARNESS_JIT`` says.
+
 ``HARNESS_JIT=0`` in the environment: numba is not imported and the kernels run as the plain Python functions
 they are, over lists instead of arrays (``floats``), with the same results to the bit. For a process that
 steps a single vehicle for a short flight that is cheaper than numba's start-up.
@@ -36,14 +39,23 @@ import logging
 import os
 import tempfile
 from collections.abc import Callable
-from typing import Any, TypeVar, cast
+from typing import Any, TypeAlias, TypeVar, cast
 
 import numpy as np
 
+from harness.core import native
+
 F = TypeVar("F", bound=Callable[..., Any])
 
-ENABLED = os.environ.get("HARNESS_JIT", "1") != "0"
-"""Whether kernels are compiled (``HARNESS_JIT``, read at import; ``prefer`` may change it before any kernel)."""
+Floats: TypeAlias = list[float]
+"""The type of a kernel's state or gains parameter (``floats``): numba compiles it as a float64 array, mypy and
+mypyc (``harness.core.native``) see the list of floats it is where kernels are not numba-compiled, so that
+mypyc's code indexes a list and does C double arithmetic instead of generic object arithmetic."""
+
+ENABLED = os.environ.get("HARNESS_JIT", "1") != "0" and not native.ACTIVE
+"""Whether kernels are compiled (``HARNESS_JIT``, read at import; ``prefer`` may change it before any kernel).
+Never when the compiled core runs (``harness.core.native.ACTIVE``): mypyc has compiled the kernels' modules,
+their functions are machine code already (and numba cannot read them)."""
 
 _made = False
 
@@ -55,7 +67,7 @@ def prefer(compiled: bool) -> bool:
     numba's start-up (≈ 0.4 s of CPU) pays back from about two vehicles in a process; a process stepping one
     vehicle prefers plain Python."""
     global ENABLED
-    if "HARNESS_JIT" not in os.environ and not _made:
+    if "HARNESS_JIT" not in os.environ and not _made and not native.ACTIVE:
         ENABLED = compiled
     return ENABLED
 
@@ -79,7 +91,13 @@ def _signature(fn: Callable[..., Any]) -> tuple[Any, ...]:
     import numba
 
     # the numba type of each annotation a kernel's parameter may have (arrays: float64, 1-D, C-contiguous)
-    by_name = {"float": numba.float64, "bool": numba.boolean, "int": numba.int64, "np.ndarray": numba.float64[::1]}
+    by_name = {
+        "float": numba.float64,
+        "bool": numba.boolean,
+        "int": numba.int64,
+        "np.ndarray": numba.float64[::1],
+        "Floats": numba.float64[::1],
+    }
     types = []
     for p in inspect.signature(fn, eval_str=False).parameters.values():
         t = by_name.get(str(p.annotation))

@@ -6,17 +6,15 @@ layer and the sweep driver, which read ``SensorConfig``, do not import numba.
 
 from __future__ import annotations
 
-import numpy as np
-
-from harness.core.jit import compiled, kernel
+from harness.core.jit import Floats, compiled, kernel
 
 
 @kernel
 def imu_sample(
-    z: np.ndarray,
+    z: Floats,
     at: int,
-    s: np.ndarray,
-    c: np.ndarray,
+    s: Floats,
+    c: Floats,
     sf0: float,
     sf1: float,
     sf2: float,

@@ -11,18 +11,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import jsbsim
-import msgspec
 import numpy as np
 
 from harness.core.errors import ScenarioError, SimulationError
 from harness.core.geo import Vec3, quat_from_euler
+from harness.fdm.config import PhysicsConfig, SensorConfig
 from harness.fdm.environment import TURBULENCE_LEVELS, Turbulence, WindConfig, WorldOrigin
 from harness.fdm.frame import MOTOR_COUNT, SensorFrame, Truth
-from harness.fdm.params import DEFAULT_QUAD, FT_PER_M, G_M_S2, M_PER_FT, N_PER_LBF, QuadParams, models_root
-from harness.fdm.sensors import SensorConfig, SensorModel
+from harness.fdm.params import FT_PER_M, G_M_S2, M_PER_FT, N_PER_LBF, models_root
+from harness.fdm.sensors import SensorModel
 
 __all__ = ["TURBULENCE_LEVELS", "Physics", "PhysicsConfig", "SensorConfig", "WindConfig", "WorldOrigin"]
 
@@ -44,58 +44,6 @@ _READ = (
     "forces/fbz-total-lbs",
     "forces/fbz-gear-lbs",
 )
-
-
-@dataclass(frozen=True)
-class PhysicsConfig:
-    n_vehicles: int = 1
-    seed: int = 0
-    substep_hz: float = 1000.0
-    tick_hz: float = 250.0
-    origin: WorldOrigin = field(default_factory=WorldOrigin)
-    wind: WindConfig = field(default_factory=WindConfig)
-    spawn_ned_m: tuple[Vec3, ...] | None = None
-    """Where each vehicle starts (on the ground when d = 0); default: a grid 5 m apart."""
-    spawn_spacing_m: float = 5.0
-    sensors: SensorConfig = field(default_factory=SensorConfig)
-    drag: bool = True
-    crash_speed_m_s: float = 3.0
-    tip_over_deg: float = 60.0
-    """Tilt at which a vehicle touching the ground has tipped over (crashed)."""
-    quad: QuadParams = DEFAULT_QUAD
-
-    def __post_init__(self) -> None:
-        if self.n_vehicles < 1:
-            raise ScenarioError(f"physics: n_vehicles must be >= 1, got {self.n_vehicles}")
-        if not self.tick_hz > 0 or not self.substep_hz > 0:
-            raise ScenarioError(f"physics: rates must be > 0 (substep_hz={self.substep_hz}, tick_hz={self.tick_hz})")
-        ratio = self.substep_hz / self.tick_hz
-        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ScenarioError(
-                f"physics: substep_hz ({self.substep_hz}) must be a whole multiple of tick_hz ({self.tick_hz})"
-            )
-        if self.spawn_ned_m is not None and len(self.spawn_ned_m) != self.n_vehicles:
-            raise ScenarioError(
-                f"physics: {len(self.spawn_ned_m)} spawn positions given for {self.n_vehicles} vehicles"
-            )
-
-    def spawn(self, i: int) -> Vec3:
-        if self.spawn_ned_m is not None:
-            return self.spawn_ned_m[i]
-        cols = max(1, math.ceil(math.sqrt(self.n_vehicles)))
-        return (-(i // cols) * self.spawn_spacing_m, (i % cols) * self.spawn_spacing_m, 0.0)
-
-    def to_json(self) -> bytes:
-        """This configuration as JSON (every float exact): what a worker process builds its share from."""
-        return msgspec.json.encode(self)
-
-    @classmethod
-    def from_json(cls, data: bytes | str) -> PhysicsConfig:
-        """The configuration :meth:`to_json` wrote; :class:`ScenarioError` if ``data`` is not one."""
-        try:
-            return msgspec.json.decode(data, type=cls)
-        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-            raise ScenarioError(f"physics: not a physics configuration: {exc}") from None
 
 
 @dataclass

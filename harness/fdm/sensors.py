@@ -3,98 +3,33 @@
 Pure per-vehicle state fed with ground truth every tick; all randomness from the vehicle's own seeded
 ``numpy.random.Generator``, drawn in a fixed order, so the same seed gives bit-identical streams. The IMU,
 sampled every tick, is one call of the numba-compiled ``imu.imu_sample``, imported when a ``SensorModel`` is
-made (the scenario layer reads ``SensorConfig`` from here without importing numba); the slower sensors are
-plain float math.
+made; the slower sensors are plain float math. ``SensorConfig`` and the GPS profiles are defined in
+``harness.fdm.config`` (this module is compiled by mypyc, which does not keep a dataclass's field types for
+msgspec) and re-exported here.
 """
 
 from __future__ import annotations
 
 import collections
-import enum
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from harness.core import jit
-from harness.core.errors import ScenarioError
 from harness.core.geo import EARTH_RADIUS_M, Quat, Vec3
+from harness.fdm.config import GPS_PROFILES, GpsProfile, SensorConfig, gps_profile_names
 from harness.fdm.frame import Baro, Gps, Imu, Mag
 
-
-def gps_profile_names() -> list[str]:
-    return sorted(p.value for p in GpsProfile)
-
-
-class GpsProfile(enum.StrEnum):
-    """A GPS error model (its value is the scenario file's ``sensors.gps``)."""
-
-    PX4_SITL = "px4-sitl"
-    STANDALONE = "standalone"
-
-
-GPS_PROFILES: dict[GpsProfile, dict[str, float]] = {
-    GpsProfile.PX4_SITL: {"gps_noise_m": 0.026, "gps_alt_noise_m": 0.038, "gps_error_tau_s": 2.4},
-    GpsProfile.STANDALONE: {"gps_noise_m": 0.3, "gps_alt_noise_m": 0.5, "gps_error_tau_s": 20.0},
-}
-"""GPS position error models (per-axis σ and correlation time of a Gauss-Markov error).
-
-- ``px4-sitl`` (default): what PX4's own SITL adds in Gazebo (``SensorGpsSim``, "based on u-blox F9P"):
-  centimetre level, decorrelating in about 2 s. Flights compare with PX4 SITL; a hover holds ±0.2 m.
-- ``standalone``: a single receiver without corrections, 0.3 m horizontal / 0.5 m vertical, wandering over
-  tens of seconds. Every GPS-based position hold (PX4's too) follows this error: a hover wanders about
-  ±0.4 m. Use it to test a mission's tolerance of real GPS.
-
-(PX4's older Gazebo-classic plugin adds about 3 mm; real standalone receivers are often worse than
-``standalone``, up to metres.)
-"""
-
-
-@dataclass(frozen=True)
-class SensorConfig:
-    noise: bool = True
-    """Master switch: False gives ideal sensors (no noise, bias, drift; latency and rates stay)."""
-    accel_noise_m_s2: float = 0.05
-    """White noise, standard deviation per sample."""
-    accel_bias_m_s2: Vec3 = (0.03, -0.02, 0.04)
-    """Turn-on bias (what a calibration would leave)."""
-    accel_bias_walk_m_s2_sqrt_s: float = 0.0005
-    gyro_noise_rad_s: float = 0.004
-    gyro_bias_rad_s: Vec3 = (0.002, -0.0015, 0.001)
-    gyro_bias_walk_rad_s_sqrt_s: float = 0.00005
-    mag_rate_hz: float = 50.0
-    mag_noise_gauss: float = 0.003
-    mag_bias_gauss: Vec3 = (0.002, -0.001, 0.0015)
-    baro_rate_hz: float = 50.0
-    baro_noise_m: float = 0.1
-    """Pressure noise, expressed as the altitude it amounts to."""
-    baro_bias_m: float = 0.3
-    baro_drift_m_sqrt_s: float = 0.005
-    gps_rate_hz: float = 10.0
-    gps_latency_s: float = 0.1
-    gps_noise_m: float = 0.026
-    """Horizontal position error per axis: standard deviation of a first-order Gauss-Markov error with
-    correlation time ``gps_error_tau_s``. The defaults are the ``px4-sitl`` profile (:data:`GPS_PROFILES`)."""
-    gps_alt_noise_m: float = 0.038
-    gps_error_tau_s: float = 2.4
-    gps_vel_noise_m_s: float = 0.05
-    gps_fix_type: int = 3
-    gps_satellites: int = 12
-
-    @classmethod
-    def for_gps(cls, profile: GpsProfile | str, **overrides: Any) -> SensorConfig:
-        """The sensors with the GPS error of ``profile`` (a :class:`GpsProfile` or its value)."""
-        if profile not in GPS_PROFILES:
-            raise ScenarioError(f"sensors: unknown GPS profile {profile!r}; choose one of {gps_profile_names()}")
-        return cls(**(GPS_PROFILES[GpsProfile(profile)] | overrides))
-
-    def __post_init__(self) -> None:
-        for name in ("mag_rate_hz", "baro_rate_hz", "gps_rate_hz", "gps_error_tau_s"):
-            if not getattr(self, name) > 0:
-                raise ScenarioError(f"sensors: {name} must be > 0, got {getattr(self, name)}")
-        if self.gps_latency_s < 0:
-            raise ScenarioError(f"sensors: gps_latency_s must be >= 0, got {self.gps_latency_s}")
+__all__ = [
+    "GPS_PROFILES",
+    "GpsProfile",
+    "SensorConfig",
+    "SensorModel",
+    "gps_profile_names",
+    "isa_altitude_m",
+    "isa_pressure_pa",
+]
 
 
 def isa_pressure_pa(alt_amsl_m: float) -> float:

@@ -1,6 +1,7 @@
 """The compiled kernels (``harness.core.jit``) in fresh processes: they work without a writable cache directory,
 several processes compiling the same kernels at once into an empty cache all succeed with the same results,
-and the processes that do not step vehicles do not import numba."""
+and the processes that do not step vehicles do not import numba. (All on the pure-Python modules,
+``HARNESS_PURE=1``: where the mypyc-compiled core runs numba is not used, ``tests/core/test_native.py``.)"""
 
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ print("numba" in sys.modules)
 def _env(**extra: str) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH", "")]))
+    env["HARNESS_PURE"] = "1"  # numba compiles the kernels only where mypyc's compiled core does not run
     return env | extra
 
 
