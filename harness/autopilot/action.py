@@ -16,6 +16,7 @@ from harness.autopilot.navigator import Orbit
 from harness.autopilot.offboard import OffboardInput
 from harness.autopilot.supervisor import Commander, arming_check
 from harness.autopilot.validate import finite
+from harness.core.geo import GeoRef
 
 
 class Actions:
@@ -125,6 +126,19 @@ class Actions:
             return "no global position"
         return ""
 
+    def _point_or_here(
+        self, lat_deg: float | None, lon_deg: float | None, alt_amsl_m: float | None
+    ) -> tuple[GeoRef, float, float, float]:
+        """The local frame and a point whose missing coordinates (None, or NaN as MAVLink sends them) are where
+        the vehicle is (under the lock, once ``_flying`` passed: there is a frame)."""
+        e = self.ap.core.est
+        ref = e.ref
+        assert ref is not None
+        here = e.geo()
+        given = (lat_deg, lon_deg, alt_amsl_m)
+        lat, lon, alt = (h if v is None or math.isnan(v) else v for v, h in zip(given, here, strict=True))
+        return ref, lat, lon, alt
+
     def reposition(
         self, lat_deg: float | None, lon_deg: float | None, alt_amsl_m: float | None, yaw_rad: float | None = None
     ) -> CommandResult:
@@ -134,13 +148,7 @@ class Actions:
             if why:
                 return CommandResult.rejected(f"Reposition rejected: {why}")
             c = ap.core
-            e = c.est
-            ref = e.ref
-            assert ref is not None
-            lat0, lon0, alt0 = e.geo()
-            lat = lat0 if lat_deg is None or math.isnan(lat_deg) else lat_deg
-            lon = lon0 if lon_deg is None or math.isnan(lon_deg) else lon_deg
-            alt = alt0 if alt_amsl_m is None or math.isnan(alt_amsl_m) else alt_amsl_m
+            ref, lat, lon, alt = self._point_or_here(lat_deg, lon_deg, alt_amsl_m)
             if not finite([lat, lon, alt]) or abs(lat) > 90 or abs(lon) > 180:
                 return CommandResult.denied("Reposition denied: invalid coordinates")
             target = ref.to_ned(lat, lon, alt)
@@ -168,13 +176,7 @@ class Actions:
             if abs(velocity_m_s) > ap.params["MPC_XY_VEL_MAX"]:
                 return CommandResult.denied(f"Orbit denied: speed {velocity_m_s} m/s above MPC_XY_VEL_MAX")
             c = ap.core
-            e = c.est
-            ref = e.ref
-            assert ref is not None
-            lat0, lon0, alt0 = e.geo()
-            lat = lat0 if center_lat_deg is None or math.isnan(center_lat_deg) else center_lat_deg
-            lon = lon0 if center_lon_deg is None or math.isnan(center_lon_deg) else center_lon_deg
-            alt = alt0 if alt_amsl_m is None or math.isnan(alt_amsl_m) else alt_amsl_m
+            ref, lat, lon, alt = self._point_or_here(center_lat_deg, center_lon_deg, alt_amsl_m)
             n, east, d = ref.to_ned(lat, lon, alt)
             c.mode = FlightMode.ORBIT
             c.nav.start_orbit(Orbit(n, east, d, radius_m, velocity_m_s))

@@ -14,7 +14,7 @@ from pathlib import Path
 import msgspec
 
 from harness.autopilot.firmware import Firmware
-from harness.core.errors import ScenarioError
+from harness.core.files import read_child_config
 
 
 @dataclass(frozen=True)
@@ -60,9 +60,4 @@ class AutopilotProcessConfig:
     @classmethod
     def read(cls, path: Path) -> AutopilotProcessConfig:
         """The configuration in ``path``; :class:`ScenarioError` when it cannot be read or is not one."""
-        try:
-            return msgspec.json.decode(path.read_bytes(), type=cls)
-        except OSError as exc:
-            raise ScenarioError(f"--config {path}: cannot read it ({exc.strerror})") from None
-        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-            raise ScenarioError(f"--config {path}: not an autopilot process configuration: {exc}") from None
+        return read_child_config(path, cls, "an autopilot process configuration")

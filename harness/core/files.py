@@ -12,8 +12,13 @@ from __future__ import annotations
 import errno
 import os
 from pathlib import Path
+from typing import TypeVar
+
+import msgspec
 
 from harness.core.errors import ScenarioError, SimulationError
+
+_Config = TypeVar("_Config")
 
 _HINTS = {
     errno.ENOSPC: "the file system is full: free space there or give --out a directory on another one",
@@ -140,3 +145,14 @@ def writable_dir(path: Path, what: str = "run directory") -> None:
             probe.unlink()
         except OSError:
             pass
+
+
+def read_child_config(path: Path, kind: type[_Config], what: str) -> _Config:
+    """A child process's typed configuration (``--config FILE``, written by ``harness run``) as ``kind``;
+    :class:`ScenarioError` naming the file when it cannot be read or is not ``what``."""
+    try:
+        return msgspec.json.decode(path.read_bytes(), type=kind)
+    except OSError as exc:
+        raise ScenarioError(f"--config {path}: cannot read it ({exc.strerror})") from None
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        raise ScenarioError(f"--config {path}: not {what}: {exc}") from None

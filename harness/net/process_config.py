@@ -13,7 +13,7 @@ from typing import Any
 
 import msgspec
 
-from harness.core.errors import ScenarioError
+from harness.core.files import read_child_config
 from harness.net.model import NetworkKind
 
 
@@ -38,9 +38,4 @@ class NetworkProcessConfig(msgspec.Struct, frozen=True, kw_only=True):
     @classmethod
     def read(cls, path: Path) -> NetworkProcessConfig:
         """The configuration in ``path``; :class:`ScenarioError` when it cannot be read or is not one."""
-        try:
-            return msgspec.json.decode(path.read_bytes(), type=cls)
-        except OSError as exc:
-            raise ScenarioError(f"--config {path}: cannot read it ({exc.strerror})") from None
-        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-            raise ScenarioError(f"--config {path}: not a network process configuration: {exc}") from None
+        return read_child_config(path, cls, "a network process configuration")
