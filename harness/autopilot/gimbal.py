@@ -30,7 +30,7 @@ YAW_MIN, YAW_MAX = -180.0, 180.0
 SLEW_DEG_S = 90.0
 
 
-def _clamp(v: float, lo: float, hi: float) -> float:
+def clamp(v: float, lo: float, hi: float) -> float:
     return max(lo, min(hi, v))
 
 
@@ -129,17 +129,17 @@ class GimbalDevice:
         elif ty is not None and g.yaw_lock:
             ty = wrap180(ty - heading)
         if tp is None:
-            g.pitch_deg = _clamp(g.pitch_deg + g.pitch_rate_deg_s * dt, PITCH_MIN, PITCH_MAX)
+            g.pitch_deg = clamp(g.pitch_deg + g.pitch_rate_deg_s * dt, PITCH_MIN, PITCH_MAX)
         else:
             step = SLEW_DEG_S * dt
-            new = g.pitch_deg + _clamp(_clamp(tp, PITCH_MIN, PITCH_MAX) - g.pitch_deg, -step, step)
+            new = g.pitch_deg + clamp(clamp(tp, PITCH_MIN, PITCH_MAX) - g.pitch_deg, -step, step)
             g.pitch_rate_deg_s = (new - g.pitch_deg) / dt
             g.pitch_deg = new
         if ty is None:
-            g.yaw_deg = _clamp(g.yaw_deg + g.yaw_rate_deg_s * dt, YAW_MIN, YAW_MAX)
+            g.yaw_deg = clamp(g.yaw_deg + g.yaw_rate_deg_s * dt, YAW_MIN, YAW_MAX)
         else:
             step = SLEW_DEG_S * dt
-            new = g.yaw_deg + _clamp(_clamp(ty, YAW_MIN, YAW_MAX) - g.yaw_deg, -step, step)
+            new = g.yaw_deg + clamp(clamp(ty, YAW_MIN, YAW_MAX) - g.yaw_deg, -step, step)
             g.yaw_rate_deg_s = (new - g.yaw_deg) / dt
             g.yaw_deg = new
         self.report = (g.pitch_deg, g.yaw_deg)

@@ -8,6 +8,7 @@ import math
 
 import msgspec
 
+from harness.autopilot.mathutil import quat_to_euler
 from harness.core.geo import Quat, Vec3, quat_from_euler
 from harness.wire.protocol import unpack_gimbal
 
@@ -52,8 +53,7 @@ def gimbal_of(s: VehicleSample) -> GimbalSample | None:
     if att is None:
         return None
     pitch, yaw = att
-    w, x, y, z = s.quat_wxyz
-    body_yaw = math.degrees(math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+    body_yaw = math.degrees(quat_to_euler(s.quat_wxyz)[2])
     heading = (body_yaw + yaw + 180.0) % 360.0 - 180.0
     return GimbalSample(pitch, yaw, heading, quat_from_euler(0.0, math.radians(pitch), math.radians(heading)))
 

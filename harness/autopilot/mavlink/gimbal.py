@@ -32,7 +32,7 @@ from collections.abc import Callable, Mapping
 from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import CommandResult, VehicleState
-from harness.autopilot.gimbal import PITCH_MAX, PITCH_MIN, YAW_MAX, YAW_MIN, wrap180
+from harness.autopilot.gimbal import PITCH_MAX, PITCH_MIN, YAW_MAX, YAW_MIN, clamp, wrap180
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.service import CommandHandler, Service, outcome
@@ -59,15 +59,11 @@ _CAPS = (
 )
 
 
-def _clamp(v: float, lo: float, hi: float) -> float:
-    return max(lo, min(hi, v))
-
-
 def euler_of(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
     """(roll, pitch, yaw) in degrees of a quaternion (w, x, y, z), aerospace ZYX."""
     w, x, y, z = q
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(_clamp(2 * (w * y - z * x), -1.0, 1.0))
+    pitch = math.asin(clamp(2 * (w * y - z * x), -1.0, 1.0))
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return math.degrees(roll), math.degrees(pitch), math.degrees(yaw)
 
@@ -239,7 +235,7 @@ class GimbalService(Service):
                 return (0, 0)
             if sys_v == -2 or comp_v == -2:
                 return current
-            return (int(_clamp(sys_v, 0, 255)), int(_clamp(comp_v, 0, 255)))
+            return (int(clamp(sys_v, 0, 255)), int(clamp(comp_v, 0, 255)))
 
         self.primary = pick(p[0], p[1], self.primary)
         self.secondary = pick(p[2], p[3], self.secondary)
