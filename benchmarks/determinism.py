@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/determinism.py missions/square_native.py                 # max, max, x5
     .venv/bin/python benchmarks/determinism.py SCRIPT --vehicles 2 --seed 9 --busy 8      # 8 busy processes beside it
     .venv/bin/python benchmarks/determinism.py SCRIPT --speeds max,max,5 --firmware ardupilot -- --connect tcp:127.0.0.1:5760
+    .venv/bin/python benchmarks/determinism.py missions/formation.py --swarm --vehicles 10 --duration 40 -- 5
 
 Each run is ``harness run SCRIPT`` with the same seed; ``--busy N`` starts N processes that keep a core busy
 for every run after the first (so the first is a reference on a quieter machine). It prints, per vehicle, the
@@ -48,9 +49,12 @@ def main() -> int:
     ap.add_argument("--speeds", default="max,max,5", help="one run per entry: max or a real-time factor")
     ap.add_argument("--busy", type=int, default=0, help="busy processes beside every run after the first")
     ap.add_argument("--firmware", default=None, help="px4 (default) or ardupilot")
+    ap.add_argument("--swarm", action="store_true", help="the script commands every vehicle (--swarm-mission)")
     ap.add_argument("args", nargs="*", help="the script's own arguments (after --)")
     a = ap.parse_args()
     extra = ["--firmware", a.firmware] if a.firmware else []
+    if a.swarm:
+        extra += ["--swarm-mission", str(a.script)]
     out = Path(tempfile.mkdtemp(prefix="determinism-"))
     runs: list[RunRecord] = []
     for k, speed in enumerate(a.speeds.split(",")):
@@ -59,7 +63,7 @@ def main() -> int:
         try:
             run = run_harness(
                 out / f"run-{k}",
-                a.script,
+                [] if a.swarm else a.script,
                 vehicles=a.vehicles,
                 seed=a.seed,
                 speed=None if speed == "max" else float(speed),

@@ -10,9 +10,10 @@ environment ``harness run`` gives each mission); anything else is left as it is.
 
 from __future__ import annotations
 
+import json
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 PX4_API_BASE = 14580
@@ -61,6 +62,38 @@ class VehicleEndpoints:
         return cls(int(udp), int(tcp) if tcp else None)
 
 
+ENV_VEHICLES = "HARNESS_VEHICLES"
+"""Every vehicle of a run, for a swarm mission (a JSON list; ``harness.run.swarm`` writes it)."""
+
+
+def team_from_env() -> list[VehicleEndpoints]:
+    """The ports of every vehicle a swarm mission commands (``HARNESS_VEHICLES``); empty outside a swarm mission.
+
+    Raises ``ValueError`` with what is wrong when the variable is not the list the launcher writes."""
+    text = os.environ.get(ENV_VEHICLES)
+    if not text:
+        return []
+    try:
+        items = json.loads(text)
+        return [
+            VehicleEndpoints(int(v["udp_port"]), None if v.get("tcp_port") is None else int(v["tcp_port"]))
+            for v in items
+        ]
+    except (ValueError, TypeError, KeyError) as e:
+        raise ValueError(f"{ENV_VEHICLES} is not a list of vehicles with udp_port and tcp_port ({e})") from None
+
+
+def team_member(scheme: str, host: object, port: int, team: Sequence[VehicleEndpoints]) -> VehicleEndpoints | None:
+    """The vehicle of ``team`` that a swarm mission addresses at ``(host, port)`` over ``scheme`` (``udp`` or
+    ``tcp``): its own port, given in ``HARNESS_VEHICLES``; None for any other address."""
+    if not is_local(host):
+        return None
+    for ep in team:
+        if (ep.udp_port if scheme == "udp" else ep.tcp_port) == port:
+            return ep
+    return None
+
+
 def is_local(host: object) -> bool:
     return isinstance(host, str) and host in _LOCAL_HOSTS
 
@@ -107,3 +140,25 @@ def mavsdk_url(url: str, ep: VehicleEndpoints, listen_port: Callable[[], int] | 
     if scheme in ("tcp", "tcpout") and port is not None and tcp_destination(host, port, ep):
         return f"tcpout://{ep.host}:{ep.tcp_port}"
     return url
+
+
+def team_mavsdk_url(
+    url: str, team: Sequence[VehicleEndpoints], listen_port: Callable[[VehicleEndpoints], int]
+) -> tuple[str, VehicleEndpoints | None]:
+    """A swarm mission's MAVSDK URL for one of its vehicles, and that vehicle (None: not one of them).
+
+    ``udpout://127.0.0.1:P`` to vehicle ``i``'s own port (``HARNESS_VEHICLES``' ``mavsdk_url``) becomes ``udpin``
+    on a port ``listen_port(vehicle)`` reserved and announced to it, as a one-vehicle mission's does
+    (:func:`mavsdk_url`): the vehicle knows it as a peer on sim time from the start. TCP URLs stay as they are."""
+    m = _URL.match(url)
+    if m is None or m.group("port") is None:
+        return url, None
+    scheme, host, port = m.group("scheme"), m.group("host").strip("[]"), int(m.group("port"))
+    if scheme in ("tcp", "tcpout"):
+        return url, team_member("tcp", host, port, team)
+    if scheme != "udpout":  # MAVSDK's udp:// and udpin:// listen: not a vehicle's port
+        return url, None
+    ep = team_member("udp", host, port, team)
+    if ep is None:
+        return url, None
+    return f"udpin://127.0.0.1:{listen_port(ep)}", ep

@@ -30,8 +30,8 @@ from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware
+from harness.core.endpoints import ENV_VEHICLES
 
-ENV_VEHICLES = "HARNESS_VEHICLES"
 SWARM_VEHICLE = -1
 """The channel's vehicle index of a swarm mission (it belongs to no one vehicle)."""
 SWARM_PEER_PREFIX = "swarm:"

@@ -15,10 +15,10 @@ class Installed:
 
     Patching replaces process-wide functions (``time.sleep``, ``socket.socket``), so what they run on is
     process-wide too; it lives here and nowhere else (:data:`INSTALLED`): ``patch.install`` sets ``runtime``,
-    ``simsocket.install`` sets ``sockets`` and ``endpoints``.
+    ``simsocket.install`` sets ``sockets``, ``endpoints`` and ``team``.
     """
 
-    __slots__ = ("endpoints", "runtime", "sockets")
+    __slots__ = ("endpoints", "runtime", "sockets", "team")
 
     def __init__(self) -> None:
         self.runtime: SimRuntime | None = None
@@ -27,6 +27,9 @@ class Installed:
         """The runtime the mission's sockets wait on and send radio packets through (``simsocket.install``)."""
         self.endpoints: VehicleEndpoints | None = None
         """The vehicle a script's MAVLink addresses are mapped to (``simsocket.install``)."""
+        self.team: tuple[VehicleEndpoints, ...] = ()
+        """A swarm mission's vehicles (``HARNESS_VEHICLES``): its MAVLink to their own ports is settled and its
+        MAVSDK connections to them listen on announced ports, as a one-vehicle mission's (``simsocket.install``)."""
 
 
 INSTALLED = Installed()

@@ -28,7 +28,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from harness.core.endpoints import VehicleEndpoints, mavsdk_url
+from harness.core.endpoints import VehicleEndpoints, mavsdk_url, team_mavsdk_url
 from harness.core.freeport import free_tcp_port
 
 log = logging.getLogger(__name__)
@@ -225,11 +225,11 @@ def install(script: Path, ep: VehicleEndpoints | None, api: MavsdkApi | None = N
 
 def _for_vehicle(url: str, ep: VehicleEndpoints | None) -> str:
     """``url`` as MAVSDK is to use it in a run: listening on a port announced to the mission's vehicle."""
-    if ep is None:
-        return url
-    from harness.simclock.installed import current
+    from harness.simclock.installed import INSTALLED, current
     from harness.simclock.simsocket import announce_listen_port
 
     rt = current()
     sim = rt is not None and rt.native is not None
+    if ep is None:  # a swarm mission: a URL of one of its vehicles listens on a port announced to that vehicle
+        return team_mavsdk_url(url, INSTALLED.team, lambda member: announce_listen_port(member, sim_clock=sim))[0]
     return mavsdk_url(url, ep, lambda: announce_listen_port(ep, sim_clock=sim))

@@ -113,6 +113,10 @@ class NativeClock:
     def busy(self) -> int:
         return int(self.lib.hs_busy())
 
+    def release_ready(self) -> int:
+        """Let every library thread whose descriptors are ready run; how many."""
+        return int(self.lib.hs_release_ready())
+
     def sent(self) -> int:
         return int(self.lib.hs_sent())
 

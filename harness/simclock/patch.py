@@ -11,6 +11,7 @@ import asyncio
 import concurrent.futures.thread as _futures_thread
 import datetime as _dt
 import io
+import math
 import os
 import queue as _queue
 import selectors
@@ -132,17 +133,73 @@ def patched_names() -> Mapping[str, str]:
 # --- thread pools --------------------------------------------------------------------------------
 
 
+DEFAULT_POOL_WORKERS = 32
+"""Workers of a pool made without ``max_workers`` (the event loop's default executor among them) in a mission:
+Python's own default, ``min(32, cpu_count + 4)``, depends on the machine, and with it when a script's blocking
+calls beyond that many start (6 on 2 cores: a swarm script's seventh ``System`` connected a phase later)."""
+
+
+class _PoolQueue(_queue.Queue[Any]):
+    """A thread pool's work queue that knows how many workers wait on it: ``waiting`` counts the threads inside
+    :meth:`get`, under the queue's own lock. Its waits are ``Condition`` waits, so sim-time waits: a worker
+    waiting for work is idle, and ``put`` marks it busy as it hands the work over (``Condition.notify``), so the
+    work runs in this phase (the pool's own ``SimpleQueue`` is C: a worker woken from it ran whenever the machine
+    scheduled it, maybe after phase 0 had ended)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.waiting = 0
+
+    def get(self, block: bool = True, timeout: float | None = None) -> Any:
+        if not block or timeout is not None:
+            return super().get(block, timeout)
+        with self.not_empty:
+            self.waiting += 1
+            try:
+                while not self._qsize():
+                    self.not_empty.wait()
+            finally:
+                self.waiting -= 1
+            item = self._get()
+            self.not_full.notify()
+            return item
+
+    def has_worker_for_each(self) -> bool:
+        """Whether a worker waits in :meth:`get` for every queued item."""
+        with self.mutex:
+            return self._qsize() <= self.waiting
+
+
+class _IdleWorkers:
+    """The pool's ``_idle_semaphore``, exact: ``acquire(timeout=0)`` (after ``submit`` queued its work) says
+    "a worker waits for it" only when as many workers wait in ``get`` as items are queued.
+
+    CPython's semaphore is released after every work item, also by a worker that goes on to the next queued
+    item without waiting: it then counts workers that are busy, ``submit`` starts no thread, and the work waits
+    behind calls that block (a MAVSDK ``first_autopilot``) for as many phases as they do, in some runs and not
+    in others. Counted exactly, a submitted item starts in the phase it was submitted in whenever fewer than
+    ``max_workers`` items run, whatever the threads' order (a worker about to come back may make one thread too
+    many, never one too few)."""
+
+    def __init__(self, work: _PoolQueue) -> None:
+        self._work = work
+
+    def acquire(self, blocking: bool = True, timeout: float | None = None) -> bool:
+        return self._work.has_worker_for_each()
+
+    def release(self, n: int = 1) -> None:
+        """A worker finished an item: it is counted when it waits in ``get``, not now."""
+
+
 def _make_executor_init() -> Callable[..., None]:
-    """Thread-pool workers wait for work on a ``queue.Queue``, whose waits are sim-time waits: a worker waiting
-    for work is idle, and ``submit`` marks it busy as it hands the work over (``Condition.notify``), so the work
-    runs in this phase. The pool's own ``SimpleQueue`` is C: a worker woken from it ran whenever the machine
-    scheduled it, maybe after phase 0 had ended (a MAVSDK request in ``run_in_executor`` went out a phase late
-    in one run of six)."""
+    """Pools hand work over exactly (:class:`_PoolQueue`, :class:`_IdleWorkers`), with a machine-independent
+    default size (:data:`DEFAULT_POOL_WORKERS`)."""
     orig = _futures_thread.ThreadPoolExecutor.__init__
 
-    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
-        orig(self, *args, **kwargs)
-        self._work_queue = _queue.Queue()
+    def __init__(self: Any, max_workers: int | None = None, *args: Any, **kwargs: Any) -> None:
+        orig(self, DEFAULT_POOL_WORKERS if max_workers is None else max_workers, *args, **kwargs)
+        self._work_queue = work = _PoolQueue()
+        self._idle_semaphore = _IdleWorkers(work)
 
     return __init__
 
@@ -286,6 +343,9 @@ class SimSelector(selectors.BaseSelector):
         self._rt = rt
         self._inner = inner
         self.wake: Callable[[], None] | None = None
+        self.timers_held = False
+        """Set by the loop for each ``select``: it asks for no wait only because a timer held for the phase's second
+        round is due (``SimRuntime.timers_held``), so wait for that round (or for I/O)."""
 
     def register(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
         return self._inner.register(fileobj, events, data)
@@ -310,12 +370,15 @@ class SimSelector(selectors.BaseSelector):
         if not rt._tracked():
             return self._inner.select(timeout)
         if timeout is not None and timeout <= 0:
-            rt.clock_read()  # a loop that is never idle (``await asyncio.sleep(0)`` forever) sees time pass
-            return self._inner.select(timeout)
+            if not self.timers_held:
+                rt.clock_read()  # a loop that is never idle (``await asyncio.sleep(0)`` forever) sees time pass
+                return self._inner.select(timeout)
+            deadline: int | None = rt.now_ns()  # a timer is due: it runs in the phase's second round
+        else:
+            deadline = None if timeout is None else rt.now_ns() + max(1, round(timeout * NS_PER_S))
         events = self._inner.select(0)
         if events:
             return events
-        deadline = None if timeout is None else rt.now_ns() + max(1, round(timeout * NS_PER_S))
         # the epoll descriptor itself: the clock thread sees the loop's I/O (and its self-pipe, written by a
         # MAVSDK thread's call_soon_threadsafe) before it decides that phase 0 is over
         fileno = getattr(self._inner, "fileno", None)
@@ -336,6 +399,8 @@ def _raw_selector() -> selectors.BaseSelector:
 def _make_loop_class(rt: SimRuntime) -> type[asyncio.AbstractEventLoop]:
     base: type[Any] = unix_events._UnixSelectorEventLoop
 
+    resolution = time.get_clock_info("monotonic").resolution  # asyncio's own _clock_resolution
+
     class SimEventLoop(base):
         """The default loop with sim time: timers and timeouts follow the simulation clock."""
 
@@ -346,5 +411,14 @@ def _make_loop_class(rt: SimRuntime) -> type[asyncio.AbstractEventLoop]:
 
         def time(self) -> float:
             return rt.now_ns() / NS_PER_S
+
+        def _run_once(self) -> None:
+            """One iteration of the loop; in a phase's first round its due timers wait for the second
+            (``SimRuntime.timers_held``): no timer is moved to the ready queue (an end time of -inf), and a
+            ``select`` that would not wait only because of them waits for that round."""
+            held = rt.timers_held() and rt._tracked()
+            self._selector.timers_held = held and not self._ready and not self._stopping
+            self._clock_resolution = -math.inf if held else resolution
+            super()._run_once()
 
     return SimEventLoop

@@ -109,6 +109,7 @@ class SimRuntime:
         self.phase_period_ns = phase_period_ns
         self.vehicle = vehicle
         self._now_ns = 0
+        self._timers_open_ns = -1
         self._started = False
         self._mu = _thread.allocate_lock()
         self._signal = _thread.allocate_lock()
@@ -131,6 +132,8 @@ class SimRuntime:
         clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
         self._wake_requested = False
         self._settling = False
+        self._in_phase = False
+        """Between the start of a phase 0 and its end: a thread queued on the gate meanwhile runs in it (no WAKE)."""
         self._reads: dict[int, int] = {}
         self.mavlink_fds: set[int] = set()
         """Descriptors of the script's sockets to its vehicle (``simsocket``)."""
@@ -153,15 +156,26 @@ class SimRuntime:
     def unix_ns(self) -> int:
         return self.epoch_ns + self._now_ns
 
+    def timers_held(self) -> bool:
+        """Whether event loops' timers that are due now wait: until the phase's second round (see :meth:`run_phase`),
+        when the timed waits fall due, as a ``time.sleep`` does.
+
+        A loop woken in the first round (a MAVSDK callback's ``call_soon_threadsafe``) would otherwise run its due
+        timers at once, while other threads still deliver this tick's telemetry: a swarm script's 10 Hz control
+        task read some vehicles' positions of this tick and some of the last, depending on the machine's pace."""
+        return self._started and self._timers_open_ns != self._now_ns
+
     # -- the clock thread ----------------------------------------------------------------------
 
     def run_phase(self, t_ns: int, idle_poll_s: float = 0.001) -> tuple[int, bool]:
         """One phase 0 at sim time ``t_ns``: wake what is due, run until idle. Clock thread only.
 
-        Wake-ups come in two rounds, each run until the script is idle: first the threads whose I/O or
-        notification arrived since the last phase (a reader thread handles the telemetry of this tick), then
-        the timed waits that fall due (a thread polling with ``time.sleep`` sees what the reader stored). So
-        the order of the two is the same at any pace, not the order in which the threads happen to run.
+        Wake-ups come in rounds, each run until everything is idle: first MAVSDK's own threads (``native``)
+        absorb what came in, with every script thread held (:meth:`_library_first`); then the script threads
+        whose I/O or notification arrived since the last phase (a reader thread handles the telemetry of this
+        tick); then the timed waits that fall due, event loops' timers among them (a thread polling with
+        ``time.sleep`` sees what the reader stored; :meth:`timers_held`). So the order of the rounds is the same
+        at any pace, not the order in which the threads happen to run.
 
         Returns the lookahead for END-TICK-0: the earliest deadline of a timed wait (``NO_DEADLINE`` when
         there is none) and whether a delivered packet would wake a waiting thread.
@@ -173,11 +187,14 @@ class SimRuntime:
                 raise ValueError(f"sim time went backwards: {t_ns} < {self._now_ns}")
             self._now_ns = t_ns
             self._started = True
+            self._in_phase = True
             self._reads.clear()
-            self._open_gate_locked()
         native = self.native
         if native is not None:
             native.begin(t_ns)
+            self._library_first(native)
+        with self._mu:
+            self._open_gate_locked()
         # A thread whose socket received data before this phase may not have run yet to notice (a loaded
         # machine schedules it late): its wait is still counted idle, so look at the sockets themselves.
         self._release_ready_io()
@@ -192,11 +209,17 @@ class SimRuntime:
                     elif native is None or native.try_close():
                         # The library's threads wait with nothing ready, and its gate is shut: what they handed
                         # the script before they went idle (a callback's call_soon_threadsafe) is in a socket now.
-                        if self._release_ready_io_locked() or self._release_due_locked(t_ns):
+                        if self._release_ready_io_locked():
+                            if native is not None:
+                                native.reopen()
+                            continue
+                        self._timers_open_ns = t_ns  # the second round: event loops' timers fall due too
+                        if self._release_due_locked(t_ns):
                             if native is not None:
                                 native.reopen()
                             continue
                         self._gate_open = False  # the decision "idle" and closing the gate are one step
+                        self._in_phase = False
                         self._wake_requested = False
                         lookahead = self._lookahead_locked()
                         if self.trace is not None:
@@ -257,11 +280,26 @@ class SimRuntime:
         finally:
             with self._mu:
                 self._mavlink_synced = sent
+            if native is not None:
+                native.reopen()
+                self._library_first(native)
+            with self._mu:
                 self._settling = False
                 self._open_gate_locked()
-                if native is not None:
-                    native.reopen()
         self._release_ready_io()
+
+    def _library_first(self, native: NativeClock) -> None:
+        """Let MAVSDK's threads absorb what came in (a tick's telemetry, the answers to a settle) before any script
+        code runs: wait (wall clock) until they are idle with nothing ready, with the script's gate shut. What they
+        hand the script (callbacks, the results of blocking calls) is then all there when it runs, in an order
+        that does not depend on the machine's pace (a script resumed by one vehicle's answer read another's
+        position of this tick in some runs and of the last in others)."""
+        while True:
+            generation = native.generation()
+            with self._mu:
+                if native.release_ready() == 0 and self._all_idle_locked():
+                    return
+            native.wait_change(generation, 1_000_000)
 
     def _open_gate_locked(self) -> None:
         """Script threads may run again: those that were woken while the gate was shut run now."""
@@ -580,6 +618,8 @@ class SimRuntime:
             self._want_phase_locked()
 
     def _want_phase_locked(self) -> None:
+        if self._in_phase:
+            return  # the gate opens again within this phase (after the library's turn, or a settle)
         if not self._wake_requested and self.request_phase is not None:
             self._wake_requested = True
             self.request_phase()

@@ -21,7 +21,7 @@ from __future__ import annotations
 import errno
 import os
 import socket as _socket
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 from harness.core.clock import NS_PER_S, WALL
@@ -31,6 +31,8 @@ from harness.core.endpoints import (
     SETTLE_PREFIX,
     VehicleEndpoints,
     tcp_destination,
+    team_from_env,
+    team_member,
     udp_destination,
     udp_listen_redirected,
 )
@@ -130,11 +132,15 @@ class SimSocket(_original_socket):
         super().close()
 
     def _map_udp(self, address: Any) -> Any:
-        if INSTALLED.endpoints is not None and self._is_inet_dgram() and isinstance(address, tuple):
+        if not (self._is_inet_dgram() and isinstance(address, tuple)):
+            return address
+        if INSTALLED.endpoints is not None:
             dst = udp_destination(address[0], int(address[1]), INSTALLED.endpoints)
             if dst is not None:
                 self._mark_mavlink()
                 return dst
+        elif not self._mavlink and team_member("udp", address[0], int(address[1]), INSTALLED.team) is not None:
+            self._mark_mavlink()  # a swarm mission's datagram to one of its vehicles: settled, as any mission's
         return address
 
     def bind(self, address: Any) -> None:
@@ -162,6 +168,12 @@ class SimSocket(_original_socket):
                 dst = tcp_destination(address[0], int(address[1]), ep)
                 if dst is not None:
                     address = dst
+                    self._mark_mavlink()
+            else:
+                address = self._map_udp(address)
+        elif INSTALLED.team and isinstance(address, tuple) and self.family == _socket.AF_INET:
+            if self.type == _socket.SOCK_STREAM:
+                if team_member("tcp", address[0], int(address[1]), INSTALLED.team) is not None:
                     self._mark_mavlink()
             else:
                 address = self._map_udp(address)
@@ -229,17 +241,18 @@ class SimSocket(_original_socket):
 
 
 class _Settler:
-    """Asks the vehicle to confirm that it has handled the script's MAVLink (``SimRuntime.settle_mavlink``).
+    """Asks the vehicles to confirm that they have handled the script's MAVLink (``SimRuntime.settle_mavlink``):
+    the mission's one vehicle, or every vehicle of a swarm mission (each gets the token; all must echo it).
 
     A loaded machine can take seconds to schedule the vehicle's MAVLink thread, so it waits up to
-    ``PATIENCE_S`` of wall time; after an unanswered request it waits only ``IMPATIENCE_S`` until the vehicle
-    answers again (a vehicle that is gone does not hold every phase for long: the run ends on its own)."""
+    ``PATIENCE_S`` of wall time; after an unanswered request it waits only ``IMPATIENCE_S`` until the vehicles
+    answer again (a vehicle that is gone does not hold every phase for long: the run ends on its own)."""
 
     PATIENCE_S = 20.0
     IMPATIENCE_S = 0.5
 
-    def __init__(self, ep: VehicleEndpoints) -> None:
-        self._dst = (ep.host, ep.udp_port)
+    def __init__(self, eps: Sequence[VehicleEndpoints]) -> None:
+        self._dsts = [(ep.host, ep.udp_port) for ep in eps]
         self._sock = _original_socket(_socket.AF_INET, _socket.SOCK_DGRAM)
         self._sock.bind(("127.0.0.1", 0))
         self._sock.setblocking(False)
@@ -249,32 +262,38 @@ class _Settler:
     def __call__(self) -> bool:
         self._seq += 1
         token = SETTLE_PREFIX + str(self._seq).encode()
-        self._sock.sendto(token, self._dst)
+        for dst in self._dsts:
+            self._sock.sendto(token, dst)
+        waiting = set(self._dsts)
         deadline = WALL.now_ns() + int((self.PATIENCE_S if self._answered else self.IMPATIENCE_S) * NS_PER_S)
-        while True:
+        while waiting:
             r, _, _ = iowait.real_select([self._sock], [], [], max(0, deadline - WALL.now_ns()) / NS_PER_S)
             if not r:
                 self._answered = False
                 return False
             try:
-                data = self._sock.recv(64)
+                data, addr = self._sock.recvfrom(64)
             except OSError:
                 continue
             if data == token:  # an older token is a late answer to a request that timed out
-                self._answered = True
-                return True
+                waiting.discard((addr[0], addr[1]))
+        self._answered = True
+        return True
 
 
 def install(rt: SimRuntime, ep: VehicleEndpoints | None, cls: type[SimSocket] = SimSocket) -> None:
-    """Sockets created from now on are ``cls`` (mission processes only)."""
-    INSTALLED.sockets, INSTALLED.endpoints = rt, ep
-    if ep is not None:
-        rt.settle_mavlink = _Settler(ep)
+    """Sockets created from now on are ``cls`` (mission processes only). Without ``ep`` (a swarm mission), the
+    vehicles of ``HARNESS_VEHICLES`` are the mission's team (``INSTALLED.team``)."""
+    team = () if ep is not None else tuple(team_from_env())
+    INSTALLED.sockets, INSTALLED.endpoints, INSTALLED.team = rt, ep, team
+    if ep is not None or team:
+        rt.settle_mavlink = _Settler([ep] if ep is not None else team)
     _socket.socket = cls  # type: ignore[misc]
 
 
 def uninstall() -> None:
     INSTALLED.sockets = INSTALLED.endpoints = None
+    INSTALLED.team = ()
     _socket.socket = _original_socket  # type: ignore[misc]
 
 

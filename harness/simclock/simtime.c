@@ -853,6 +853,15 @@ static int busy_locked(void) {
     return n;
 }
 
+/* Release every waiting thread whose descriptors are ready now; how many (the clock thread lets the library
+ * absorb a batch of input before the script runs). */
+int hs_release_ready(void) {
+    pthread_mutex_lock(&mu);
+    int n = release_ready_locked();
+    pthread_mutex_unlock(&mu);
+    return n;
+}
+
 /* Busy tracked threads (0: every thread of the library waits). */
 int hs_busy(void) {
     pthread_mutex_lock(&mu);
