@@ -199,3 +199,51 @@ def test_a_thread_waiting_for_the_gate_is_never_counted_idle_without_being_queue
     assert not waiter.is_alive() and not ended_without_it, "the phase ended without the thread waiting for it"
     rt._gate_open = True
     rt.wait_gate()  # phase 0 is on: no wait at all
+
+
+def test_a_pool_starts_a_thread_for_work_no_waiting_worker_can_take() -> None:
+    """A pool's hand-off in a mission (``patch._PoolQueue``, ``patch._IdleWorkers``): ``submit`` starts no new
+    thread only when a worker waits in ``get`` for every queued item. CPython's idle semaphore is released after
+    every item, also by a worker that goes straight on to a queued one: it then said "idle" for a busy worker,
+    and a blocking call queued behind another (a swarm script's seventh MAVSDK ``first_autopilot`` waited a
+    phase for a free thread in some runs only)."""
+    work = patch._PoolQueue()
+    idle = patch._IdleWorkers(work)
+    idle.release()
+    idle.release()  # two items done: CPython's semaphore would now say two workers are free
+    work.put("first")
+    assert not idle.acquire(timeout=0), "an item is queued and no worker waits: the pool must start a thread"
+    got: list[object] = []
+
+    def worker() -> None:
+        got.append(work.get())
+
+    first = threading.Thread(target=worker, daemon=True)
+    first.start()
+    first.join(5.0)
+    assert got == ["first"] and work.waiting == 0, "a worker that found an item never counted as waiting"
+    second = threading.Thread(target=worker, daemon=True)
+    second.start()
+    wait_until(lambda: work.waiting == 1, timeout_s=5.0, what="the worker waits in get")
+    work.put("second")
+    assert idle.acquire(timeout=0), "a worker waits for the one queued item: no new thread"
+    second.join(5.0)
+    assert got == ["first", "second"]
+    work.put("third")
+    work.put("fourth")
+    assert not idle.acquire(timeout=0)
+
+
+def test_a_pool_made_without_a_size_has_the_same_size_on_every_machine() -> None:
+    rt = SimRuntime(epoch_ns=0, phase_period_ns=20_000_000)
+    patch.install(rt)
+    try:
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor()
+        assert pool._max_workers == patch.DEFAULT_POOL_WORKERS
+        assert ThreadPoolExecutor(max_workers=3)._max_workers == 3
+        assert pool.submit(lambda: 7).result(timeout=5) == 7  # before the first phase: waits are the wall clock's
+        pool.shutdown()
+    finally:
+        patch.uninstall()
