@@ -16,7 +16,9 @@ from one process, so it is told all of them instead, in one environment variable
     SERIAL0 port of an ArduPilot vehicle (null for PX4).
 
 The swarm mission is a type-0 subscriber like any mission (sim clock, phase 0, exit code), with no vehicle
-of its own (``vehicle = -1`` on the channel); its addresses are used as given (nothing is redirected). Its
+of its own (``vehicle = -1`` on the channel). The standard addresses are not redirected; the vehicles' own are
+its *team*: MAVLink to them is settled like a one-vehicle mission's, and a MAVSDK ``udpout://`` URL to one
+listens on a port announced to that vehicle (``harness.core.endpoints.team_mavsdk_url``). Its
 exit code is every vehicle's ``mission_exit_code`` in ``summary.json`` unless the vehicle also has a
 mission of its own.
 """

@@ -294,12 +294,23 @@ class SimRuntime:
         hand the script (callbacks, the results of blocking calls) is then all there when it runs, in an order
         that does not depend on the machine's pace (a script resumed by one vehicle's answer read another's
         position of this tick in some runs and of the last in others)."""
+        now_wall = self.wall.now_ns
+        start = now_wall()
+        report_at = start + _REPORT_AFTER_NS
         while True:
             generation = native.generation()
             with self._mu:
                 if native.release_ready() == 0 and self._all_idle_locked():
                     return
             native.wait_change(generation, 1_000_000)
+            if now_wall() > report_at:
+                report_at += _REPORT_AFTER_NS
+                log.warning(
+                    "phase 0 at t=%.3f s has waited %.1f s for MAVSDK's threads to take in this tick; busy: %s",
+                    self._now_ns / NS_PER_S,
+                    (now_wall() - start) / NS_PER_S,
+                    "; ".join(self.busy_threads()) or "none",
+                )
 
     def _open_gate_locked(self) -> None:
         """Script threads may run again: those that were woken while the gate was shut run now."""
