@@ -117,6 +117,10 @@ class NativeClock:
         """Let every library thread whose descriptors are ready run; how many."""
         return int(self.lib.hs_release_ready())
 
+    def wait_idle(self, timeout_ns: int) -> bool:
+        """Wait (wall clock, at most ``timeout_ns``) until every library thread waits with nothing ready."""
+        return bool(self.lib.hs_wait_library_idle(timeout_ns))
+
     def sent(self) -> int:
         return int(self.lib.hs_sent())
 
@@ -157,6 +161,7 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.hs_sent.restype = u64
     lib.hs_generation.restype = u64
     lib.hs_wait_change.argtypes = [u64, i64]
+    lib.hs_wait_library_idle.argtypes = [i64]
     lib.hs_patch.argtypes = [ctypes.c_char_p]
     lib.hs_describe.argtypes = [ctypes.c_char_p, ctypes.c_int]
     return lib

@@ -299,10 +299,11 @@ class SimRuntime:
         report_at = start + _REPORT_AFTER_NS
         while True:
             generation = native.generation()
-            with self._mu:
-                if native.release_ready() == 0 and self._all_idle_locked():
-                    return
-            native.wait_change(generation, 1_000_000)
+            if native.wait_idle(10_000_000):  # in C, without the GIL, until the library's threads are idle
+                with self._mu:
+                    if self._all_idle_locked() and not native.release_ready():
+                        return
+                native.wait_change(generation, 1_000_000)  # a script thread the library woke: until it waits
             if now_wall() > report_at:
                 report_at += _REPORT_AFTER_NS
                 log.warning(

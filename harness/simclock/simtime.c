@@ -121,6 +121,8 @@ static int real_poll(struct pollfd *f, nfds_t n, int ms) { return (int)syscall(S
 
 /* -- thread states (mu held) ------------------------------------------------------------------------- */
 
+static int busy_locked(void);
+
 static void poke_locked(void) {
     generation++;
     pthread_cond_broadcast(&changed);
@@ -232,7 +234,11 @@ static int sim_wait(tstate *t, const struct pollfd *fds, int nfds, int64_t deadl
     t->waiting = 1;
     if (closed || (deadline != NO_DEADLINE && deadline <= now_ns && gate_open))
         release_locked(t, !closed);
-    poke_locked();
+    /* The clock thread looks again only when this can end the library's turn or the phase: the library's last
+     * busy thread waits, or a thread of the script's (a caller) does. Waking it at every wait of every thread
+     * made it look ~30 times a phase. */
+    if (!t->tracked || busy_locked() == 0)
+        poke_locked();
     pthread_mutex_unlock(&mu);
 
     struct pollfd pfd[MAX_FDS + 1];
@@ -408,8 +414,7 @@ static int wake_addr(const void *addr) {
             n++;
         }
     }
-    poke_locked();
-    pthread_mutex_unlock(&mu);
+    pthread_mutex_unlock(&mu); /* a release makes the phase busier: nothing for the clock thread to look at */
     return n;
 }
 
@@ -853,13 +858,36 @@ static int busy_locked(void) {
     return n;
 }
 
-/* Release every waiting thread whose descriptors are ready now; how many (the clock thread lets the library
- * absorb a batch of input before the script runs). */
+/* Release every waiting thread whose descriptors are ready now; how many. */
 int hs_release_ready(void) {
     pthread_mutex_lock(&mu);
     int n = release_ready_locked();
     pthread_mutex_unlock(&mu);
     return n;
+}
+
+/* Block (wall clock, at most timeout_ns) until every thread of the library waits with nothing ready (releasing
+ * those whose descriptors are ready meanwhile): the clock thread lets the library take in a batch of input before
+ * the script runs. 1 when it is so, 0 on timeout. Waiting here, without the GIL, instead of looking from Python
+ * at every change, saves ~25 wake-ups of the clock thread a phase. */
+int hs_wait_library_idle(int64_t timeout_ns) {
+    struct timespec ts;
+    real_clock_gettime(CLOCK_REALTIME, &ts); /* `changed` times out on CLOCK_REALTIME (its default) */
+    int64_t until = ts_ns(&ts) + timeout_ns;
+    ts.tv_sec = until / 1000000000LL;
+    ts.tv_nsec = until % 1000000000LL;
+    pthread_mutex_lock(&mu);
+    int r = 0;
+    for (;;) {
+        if (busy_locked() == 0 && release_ready_locked() == 0) {
+            r = 1;
+            break;
+        }
+        if (pthread_cond_timedwait(&changed, &mu, &ts) == ETIMEDOUT)
+            break;
+    }
+    pthread_mutex_unlock(&mu);
+    return r;
 }
 
 /* Busy tracked threads (0: every thread of the library waits). */
@@ -966,7 +994,7 @@ void hs_poke(void) {
 /* Block (wall clock, at most timeout_ns) until something changed since generation `g`. */
 void hs_wait_change(uint64_t g, int64_t timeout_ns) {
     struct timespec ts;
-    real_clock_gettime(CLOCK_MONOTONIC, &ts);
+    real_clock_gettime(CLOCK_REALTIME, &ts); /* `changed` times out on CLOCK_REALTIME (its default) */
     int64_t until = ts_ns(&ts) + timeout_ns;
     ts.tv_sec = until / 1000000000LL;
     ts.tv_nsec = until % 1000000000LL;
