@@ -131,7 +131,6 @@ class SimRuntime:
         """Called (once between two phases) when script work became ready outside phase 0 on the wall
         clock: the mission runner sends WAKE, so that a channel using lookahead includes it again."""
         self._wake_requested = False
-        self._settling = False
         self._in_phase = False
         """Between the start of a phase 0 and its end: a thread queued on the gate meanwhile runs in it (no WAKE)."""
         self._reads: dict[int, int] = {}
@@ -209,12 +208,11 @@ class SimRuntime:
                     elif native is None or native.try_close():
                         # The library's threads wait with nothing ready, and its gate is shut: what they handed
                         # the script before they went idle (a callback's call_soon_threadsafe) is in a socket now.
-                        if self._release_ready_io_locked():
-                            if native is not None:
-                                native.reopen()
-                            continue
-                        self._timers_open_ns = t_ns  # the second round: event loops' timers fall due too
-                        if self._release_due_locked(t_ns):
+                        released = self._release_ready_io_locked()
+                        if not released:
+                            self._timers_open_ns = t_ns  # the second round: event loops' timers fall due too
+                            released = self._release_due_locked(t_ns)
+                        if released:
                             if native is not None:
                                 native.reopen()
                             continue
@@ -232,14 +230,7 @@ class SimRuntime:
                 native.wait_change(generation, round(idle_poll_s * NS_PER_S))
             else:
                 self._signal.acquire(True, idle_poll_s)
-            if now_wall() > report_at:
-                report_at += _REPORT_AFTER_NS
-                log.warning(
-                    "phase 0 at t=%.3f s has waited %.1f s for the script; busy threads: %s",
-                    t_ns / NS_PER_S,
-                    (now_wall() - start) / NS_PER_S,
-                    "; ".join(self.busy_threads()) or "none",
-                )
+            report_at = self._warn_if_slow(start, report_at, "the script")
         self.stats.phases += 1
         self.stats.last_phase_wall_ns = now_wall() - start
         self.stats.busy_wall_ns += self.stats.last_phase_wall_ns
@@ -270,7 +261,6 @@ class SimRuntime:
             # Nothing runs while the vehicle answers: what it sends before its echo is read after it, so one round
             # (the script's messages up to this settle, and their answers) never runs into the next, at any pace.
             self._gate_open = False
-            self._settling = True
             if native is not None:
                 native.pause()
         settle = self.settle_mavlink
@@ -284,7 +274,6 @@ class SimRuntime:
                 native.reopen()
                 self._library_first(native)
             with self._mu:
-                self._settling = False
                 self._open_gate_locked()
         self._release_ready_io()
 
@@ -294,8 +283,7 @@ class SimRuntime:
         hand the script (callbacks, the results of blocking calls) is then all there when it runs, in an order
         that does not depend on the machine's pace (a script resumed by one vehicle's answer read another's
         position of this tick in some runs and of the last in others)."""
-        now_wall = self.wall.now_ns
-        start = now_wall()
+        start = self.wall.now_ns()
         report_at = start + _REPORT_AFTER_NS
         while True:
             generation = native.generation()
@@ -304,14 +292,22 @@ class SimRuntime:
                     if self._all_idle_locked() and not native.release_ready():
                         return
                 native.wait_change(generation, 1_000_000)  # a script thread the library woke: until it waits
-            if now_wall() > report_at:
-                report_at += _REPORT_AFTER_NS
-                log.warning(
-                    "phase 0 at t=%.3f s has waited %.1f s for MAVSDK's threads to take in this tick; busy: %s",
-                    self._now_ns / NS_PER_S,
-                    (now_wall() - start) / NS_PER_S,
-                    "; ".join(self.busy_threads()) or "none",
-                )
+            report_at = self._warn_if_slow(start, report_at, "MAVSDK's threads to take in this tick")
+
+    def _warn_if_slow(self, start: int, report_at: int, waiting_for: str) -> int:
+        """Every ``_REPORT_AFTER_NS`` of wall time that phase 0 waits (since ``start``), one warning naming the busy
+        threads, so a stalled mission explains itself before the watchdog drops it. Returns the next report time."""
+        now = self.wall.now_ns()
+        if now <= report_at:
+            return report_at
+        log.warning(
+            "phase 0 at t=%.3f s has waited %.1f s for %s; busy threads: %s",
+            self._now_ns / NS_PER_S,
+            (now - start) / NS_PER_S,
+            waiting_for,
+            "; ".join(self.busy_threads()) or "none",
+        )
+        return report_at + _REPORT_AFTER_NS
 
     def _open_gate_locked(self) -> None:
         """Script threads may run again: those that were woken while the gate was shut run now."""
@@ -614,7 +610,7 @@ class SimRuntime:
         if not self._gate_open:
             if w not in self._gate_waiters:
                 self._gate_waiters.append(w)
-                if wake and not self._settling:  # within a phase: it runs when the settle is over
+                if wake:  # between phases: ask for one (within a phase it runs when the gate opens again)
                     self._want_phase_locked()
             return
         w.released = True

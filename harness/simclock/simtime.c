@@ -866,16 +866,23 @@ int hs_release_ready(void) {
     return n;
 }
 
+/* The absolute deadline, timeout_ns of wall time from now, for a timed wait on `changed`: on CLOCK_REALTIME, its
+ * clock (a deadline on CLOCK_MONOTONIC had passed long ago, and the clock thread spun). */
+static struct timespec changed_deadline(int64_t timeout_ns) {
+    struct timespec ts;
+    real_clock_gettime(CLOCK_REALTIME, &ts);
+    int64_t until = ts_ns(&ts) + timeout_ns;
+    ts.tv_sec = until / 1000000000LL;
+    ts.tv_nsec = until % 1000000000LL;
+    return ts;
+}
+
 /* Block (wall clock, at most timeout_ns) until every thread of the library waits with nothing ready (releasing
  * those whose descriptors are ready meanwhile): the clock thread lets the library take in a batch of input before
  * the script runs. 1 when it is so, 0 on timeout. Waiting here, without the GIL, instead of looking from Python
  * at every change, saves ~25 wake-ups of the clock thread a phase. */
 int hs_wait_library_idle(int64_t timeout_ns) {
-    struct timespec ts;
-    real_clock_gettime(CLOCK_REALTIME, &ts); /* `changed` times out on CLOCK_REALTIME (its default) */
-    int64_t until = ts_ns(&ts) + timeout_ns;
-    ts.tv_sec = until / 1000000000LL;
-    ts.tv_nsec = until % 1000000000LL;
+    struct timespec ts = changed_deadline(timeout_ns);
     pthread_mutex_lock(&mu);
     int r = 0;
     for (;;) {
@@ -993,11 +1000,7 @@ void hs_poke(void) {
 
 /* Block (wall clock, at most timeout_ns) until something changed since generation `g`. */
 void hs_wait_change(uint64_t g, int64_t timeout_ns) {
-    struct timespec ts;
-    real_clock_gettime(CLOCK_REALTIME, &ts); /* `changed` times out on CLOCK_REALTIME (its default) */
-    int64_t until = ts_ns(&ts) + timeout_ns;
-    ts.tv_sec = until / 1000000000LL;
-    ts.tv_nsec = until % 1000000000LL;
+    struct timespec ts = changed_deadline(timeout_ns);
     pthread_mutex_lock(&mu);
     while (generation == g) {
         if (pthread_cond_timedwait(&changed, &mu, &ts) == ETIMEDOUT)
