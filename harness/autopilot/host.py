@@ -15,7 +15,7 @@ import contextlib
 import logging
 import threading
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 import msgspec
@@ -145,6 +145,7 @@ def serve_worker(
     autopilots: dict[int, Autopilot],
     physics: Physics,
     stop: threading.Event | None = None,
+    mavlink_sent: Mapping[int, Callable[[], int]] | None = None,
 ) -> int:
     """Fly ``autopilots`` and step their ``physics`` (a worker of ``harness run --workers``) until the run
     ends; returns the number of ticks stepped.
@@ -154,7 +155,8 @@ def serve_worker(
     from the end of one phase 0 — BEGIN-TICK-1 on ``clock``, a type-1 connection that answers at once —
     through every tick up to the next phase tick, whose autopilot step is ready when that BEGIN-TICK-AC
     arrives. The END-TICK-AC then carry every tick since the last (truth, motors, status), and the
-    physics steps once they are sent, while the root runs the phases.
+    physics steps once they are sent, while the root runs the phases. With ``mavlink_sent`` (by vehicle, its
+    MAVLink server's ``sim_sent``) each END-TICK-AC says whether the vehicle sent its mission MAVLink since the last.
     """
     if sorted(physics.owned) != sorted(autopilots):
         raise ScenarioError(
@@ -163,6 +165,8 @@ def serve_worker(
     owned = physics.owned
     ticks, next_phase_ns = 0, 0
     records: dict[int, list[bytes]] = {v: [] for v in owned}
+    sent = dict(mavlink_sent or {})
+    seen = dict.fromkeys(sent, 0)
     inbox, phases = _Inbox(client), _Inbox(clock)
     while stop is None or not stop.is_set():
         while True:  # every tick up to the next phase tick, the autopilots of that one included
@@ -186,7 +190,12 @@ def serve_worker(
         t_ns = physics.t_ns
         out: list[p.Message] = []
         for v, (m, status) in zip(owned, answers, strict=True):
-            out.append(p.EndTickAC(t_ns, v, m, status, b"".join(records[v])))
+            mavlink = p.MAVLINK_UNKNOWN
+            count = sent.get(v)
+            if count is not None:
+                n = count()
+                mavlink, seen[v] = (1 if n != seen[v] else 0), n
+            out.append(p.EndTickAC(t_ns, v, m, status, b"".join(records[v]), mavlink))
             records[v].clear()
         client.send_many(out)
         physics.step([m for m, _ in answers])
@@ -227,11 +236,13 @@ def run_autopilots(
     stop: threading.Event | None = None,
     autopilots: dict[int, Autopilot] | None = None,
     physics: Physics | None = None,
+    mavlink_sent: Mapping[int, Callable[[], int]] | None = None,
 ) -> dict[int, Autopilot]:
     """Fly ``vehicles`` in lockstep with the channel at ``address`` until the run ends.
 
     ``config_for(v)`` gives each vehicle's configuration; ``attach(ap)`` plugs in the MAVLink side;
-    ``physics`` (of exactly ``vehicles``): this host steps their physics too (:func:`serve`).
+    ``physics`` (of exactly ``vehicles``): this host steps their physics too (:func:`serve_worker`, which tells
+    the channel from ``mavlink_sent``, by vehicle, when it sent its mission MAVLink).
     Returns the autopilots (their final state is readable after the run).
     """
     aps = autopilots if autopilots is not None else make_autopilots(vehicles, config_for)
@@ -249,7 +260,7 @@ def run_autopilots(
                 serve(client, aps, stop)
             else:
                 with ChannelClient.connect(address, p.PeerKind.TYPE1, f"{label}:clock", secret=secret) as clock:
-                    serve_worker(client, clock, aps, physics, stop)
+                    serve_worker(client, clock, aps, physics, stop, mavlink_sent)
         finally:
             client.close("autopilot host stopping")
     finally:

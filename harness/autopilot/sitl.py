@@ -299,7 +299,8 @@ def serve(cfg: AutopilotProcessConfig) -> int:
             )
             attached.append(attach_mavlink(autopilot, ports, run_dir, signing, hub, fw, trust))
         hub.start()  # once every server is in: an add to a running hub waits for its thread
-        run_autopilots(cfg.address, vehicles, autopilots=aps, name=cfg.name, physics=physics)
+        sent = {h.server.vehicle: h.server.sim_sent for h in attached}
+        run_autopilots(cfg.address, vehicles, autopilots=aps, name=cfg.name, physics=physics, mavlink_sent=sent)
     except HarnessError as exc:
         log.error("%s", exc)
         return 1

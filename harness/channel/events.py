@@ -103,6 +103,8 @@ class PeerState:
     idle_until_ns: int = p.EVERY_PHASE
     """Lookahead from its last END-TICK-0/1: leave it out of its phase before this sim time."""
     deliver_wakes: bool = True
+    mavlink_wakes: bool = False
+    """Its vehicle's MAVLink wakes it too (END-TICK-0 ``mavlink_wakes``): see ``TickMachine._needs_phase0``."""
     woken: bool = False
     """A WAKE (type 0) arrived: include it in the next phase 0."""
     delivered: bool = False

@@ -93,6 +93,10 @@ class TickMachine(Membership):
         self._etas: dict[int, p.EndTickAC] = {}
         self._packets: list[p.Packet] = []
         self._positions: dict[int, p.Vec3] = {}
+        self._mavlink_told: set[int] = set()
+        """Vehicles whose autopilot says whether it sent its missions MAVLink (END-TICK-AC ``mavlink``)."""
+        self._mavlink_sent: set[int] = set()
+        """Vehicles that sent their missions MAVLink since those missions' last phase 0."""
 
     @property
     def phase1_running(self) -> bool:
@@ -161,6 +165,7 @@ class TickMachine(Membership):
             self._on_end_tick_ac(peer, msg)
         elif isinstance(msg, p.EndTick0):
             peer.idle_until_ns, peer.deliver_wakes = msg.idle_until_ns, msg.deliver_wakes
+            peer.mavlink_wakes = msg.mavlink_wakes
             self._on_phase_end(peer, msg.t_ns, Phase.ZERO)
         elif isinstance(msg, p.EndTick1):
             peer.idle_until_ns = msg.idle_until_ns
@@ -198,6 +203,8 @@ class TickMachine(Membership):
             _check_local(m, eta)
             waiting.discard(m.vehicle)
             stored[m.vehicle] = eta
+            if eta.mavlink != p.MAVLINK_UNKNOWN:
+                self._note_mavlink(eta)
         if not waiting:
             self._holder_done(peer)
         self._progress()
@@ -224,9 +231,16 @@ class TickMachine(Membership):
             self._positions[msg.vehicle] = p.last_position(msg.ticks)
         waiting.discard(msg.vehicle)
         self._etas[msg.vehicle] = msg
+        if msg.mavlink != p.MAVLINK_UNKNOWN:
+            self._note_mavlink(msg)
         if not waiting:
             self._holder_done(peer)
         self._progress()
+
+    def _note_mavlink(self, eta: p.EndTickAC) -> None:
+        self._mavlink_told.add(eta.vehicle)
+        if eta.mavlink:
+            self._mavlink_sent.add(eta.vehicle)
 
     def _holder_done(self, peer: PeerState) -> None:
         """Every vehicle of ``peer`` answered this tick."""
@@ -334,6 +348,8 @@ class TickMachine(Membership):
             raise RunFailed(f"upstream went back in time ({first.t_ns} ns < {self.t_ns} ns)")
         for m, eta in zip(begin_ticks, etas, strict=True):
             _check_local(m, eta)
+            if eta.mavlink != p.MAVLINK_UNKNOWN:
+                self._note_mavlink(eta)
         self.t_ns, self.tick = first.t_ns, first.tick
         self._trace("eta_up", None)
         self.ticks_done += 1
@@ -478,18 +494,29 @@ class TickMachine(Membership):
         t = self.t_ns
         what = f"END-TICK-0 of tick {self.tick}"
         for peer in list(peers):
-            if (
-                peer.kind == p.PeerKind.TYPE0
-                and peer.idle_until_ns > t
-                and not peer.woken
-                and not (peer.delivered and peer.deliver_wakes)
-            ):
+            if peer.kind == p.PeerKind.TYPE0 and not self._needs_phase0(peer, t):
                 continue  # idle by its own lookahead: nothing of it can run in this phase
             peer.woken = peer.delivered = False
+            if peer.mavlink_wakes:
+                self._mavlink_sent.discard(peer.vehicle)
             self.wait0.add(peer)
             self.watchdog.arm(peer.pid, deadline)
             peer.waiting_for = what
             self.send_raw(peer, data)
+
+    def _needs_phase0(self, peer: PeerState, t: int) -> bool:
+        """Whether a type-0 subscriber takes part in phase 0 at ``t``: its lookahead (END-TICK-0) has a timed wait
+        due, a WAKE or a DELIVER it waits for came, or — when it waits for its vehicle's MAVLink — the vehicle sent
+        it some since its last phase 0 (or does not say). Decided from what the tick brought, never from the wall
+        clock: the same phases at any pace."""
+        if peer.idle_until_ns <= t or peer.woken or (peer.delivered and peer.deliver_wakes):
+            return True
+        if not peer.mavlink_wakes:
+            return False
+        v = peer.vehicle
+        # (a vehicle that has not answered this tick yet — phase 0 may start before remote autopilots answer when
+        # none is in-process — may be sending now: the mission takes part, as without the flag)
+        return v not in self._mavlink_told or v in self._mavlink_sent or v not in self._etas
 
     def _start_phase1(self, parent_msg: p.BeginTick1 | None) -> None:
         self.state.on_phase(PhaseEvent.BEGIN1)

@@ -7,7 +7,7 @@ layer to the channel, so it lives with the launcher that builds both.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol
 
 from harness.autopilot.api import TickStatus
@@ -31,16 +31,34 @@ class NativeLink:
     frame object itself; only autopilots in other processes get it encoded in their BEGIN-TICK-AC.
     """
 
-    def __init__(self, channel: Channel, local: Mapping[int, LocalFlightStack] | None = None) -> None:
+    def __init__(
+        self,
+        channel: Channel,
+        local: Mapping[int, LocalFlightStack] | None = None,
+        mavlink_sent: Mapping[int, Callable[[], int]] | None = None,
+    ) -> None:
+        """``mavlink_sent``: by local vehicle, how much MAVLink its server has sent to missions on sim time so far
+        (``MavlinkServer.sim_sent``); each END-TICK-AC then says whether that moved (``mavlink``)."""
         self.channel = channel
         self._local = dict(local or {})
         self._frames: dict[int, SensorFrame] = {}
+        self._sent = dict(mavlink_sent or {})
+        self._sent_seen = dict.fromkeys(self._sent, 0)
         if self._local:
             channel.attach_local_autopilots(self._local, self._step_local)
 
     def _step_local(self, m: p.BeginTickAC) -> p.EndTickAC:
-        stack = self._local[m.vehicle]
-        return p.EndTickAC(m.t_ns, m.vehicle, stack.step(self._frames[m.vehicle]), p.pack_status(*stack.tick_status()))
+        v = m.vehicle
+        stack = self._local[v]
+        motors = stack.step(self._frames[v])
+        status = p.pack_status(*stack.tick_status())
+        sent = self._sent.get(v)
+        if sent is None:
+            return p.EndTickAC(m.t_ns, v, motors, status)
+        n = sent()  # after the step: what its bell sent in this tick counts
+        moved = n != self._sent_seen[v]
+        self._sent_seen[v] = n
+        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if moved else 0)
 
     def exchange(
         self, t_ns: int, tick: int, frames: Sequence[SensorFrame], elsewhere: Mapping[int, Vec3] | None = None

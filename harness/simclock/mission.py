@@ -88,7 +88,7 @@ class _ClockThread(threading.Thread):
             while True:
                 for msg in self.client.recv():
                     if isinstance(msg, p.BeginTick0):
-                        idle_until, deliver_wakes = self.rt.run_phase(msg.t_ns)
+                        idle_until, deliver_wakes, mavlink_wakes = self.rt.run_phase(msg.t_ns)
                         out: list[p.Message] = []
                         for o in self.rt.take_outbox():
                             pk = p.Packet(msg.t_ns, self.rt.vehicle, o.dst, o.port, self.seq, o.payload)
@@ -96,7 +96,7 @@ class _ClockThread(threading.Thread):
                             out.append(p.Enqueue(pk))
                         code = self.exit_code
                         if code is None:
-                            out.append(p.EndTick0(msg.t_ns, idle_until, deliver_wakes))
+                            out.append(p.EndTick0(msg.t_ns, idle_until, deliver_wakes, mavlink_wakes))
                         self.client.send_many(out)
                         if code is not None:  # the phase the script ended in: its answer is BYE, at any pace
                             self.client.close(f"script exited with {code}", code)

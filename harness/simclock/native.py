@@ -100,8 +100,10 @@ class NativeClock:
     def begin(self, t_ns: int) -> None:
         self.lib.hs_begin(t_ns)
 
-    def try_close(self) -> bool:
-        return bool(self.lib.hs_try_close())
+    def try_close(self, generation: int | None = None) -> bool:
+        """End phase 0 if every library thread is idle and nothing changed since ``generation`` (read before the
+        caller found the script's threads idle; None: now)."""
+        return bool(self.lib.hs_try_close(self.generation() if generation is None else generation))
 
     def reopen(self) -> None:
         self.lib.hs_reopen()
@@ -160,6 +162,7 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.hs_thread_waiting.argtypes = [u64]
     lib.hs_sent.restype = u64
     lib.hs_generation.restype = u64
+    lib.hs_try_close.argtypes = [u64]
     lib.hs_wait_change.argtypes = [u64, i64]
     lib.hs_wait_library_idle.argtypes = [i64]
     lib.hs_patch.argtypes = [ctypes.c_char_p]

@@ -46,9 +46,11 @@ _REPORT_AFTER_NS = 3 * NS_PER_S
 INFRA_THREAD_PREFIX = "harness-"
 """Threads whose name starts with this belong to the harness, not to the script."""
 
-_IDLE_FRAMES: set[tuple[str, str]] = {
-    ("threading.py", "_wait_for_tstate_lock"),  # Thread.join: what ends it is the joined thread's end
-}
+_JOIN_FRAME = ("threading.py", "_wait_for_tstate_lock")
+"""Thread.join: idle while the joined thread still runs Python (what ends the join is that thread's end, in a
+phase); busy once the joined thread has left ``threading.enumerate()``: its OS thread ends on the wall clock, and
+the join returns then — in this phase, not in whichever phase the machine's pace gives it."""
+_IDLE_FRAMES: set[tuple[str, str]] = {_JOIN_FRAME}
 ZENO_READS = 1000
 """A script thread that reads the clock this many times in one phase without waiting waits for the next phase
 (``clock_read``): a loop that polls ``time.time()`` without sleeping sees time pass, as on a real vehicle,
@@ -166,7 +168,7 @@ class SimRuntime:
 
     # -- the clock thread ----------------------------------------------------------------------
 
-    def run_phase(self, t_ns: int, idle_poll_s: float = 0.001) -> tuple[int, bool]:
+    def run_phase(self, t_ns: int, idle_poll_s: float = 0.001) -> tuple[int, bool, bool]:
         """One phase 0 at sim time ``t_ns``: wake what is due, run until idle. Clock thread only.
 
         Wake-ups come in rounds, each run until everything is idle: first MAVSDK's own threads (``native``)
@@ -177,7 +179,8 @@ class SimRuntime:
         at any pace, not the order in which the threads happen to run.
 
         Returns the lookahead for END-TICK-0: the earliest deadline of a timed wait (``NO_DEADLINE`` when
-        there is none) and whether a delivered packet would wake a waiting thread.
+        there is none), whether a delivered packet would wake a waiting thread and whether the vehicle's MAVLink
+        would (:meth:`_lookahead_locked`).
         """
         now_wall = self.wall.now_ns
         start = now_wall()
@@ -205,7 +208,7 @@ class SimRuntime:
                 if self._all_idle_locked():
                     if self._sent_locked() != self._mavlink_synced and self.settle_mavlink is not None:
                         settle = True
-                    elif native is None or native.try_close():
+                    elif native is None or native.try_close(generation):
                         # The library's threads wait with nothing ready, and its gate is shut: what they handed
                         # the script before they went idle (a callback's call_soon_threadsafe) is in a socket now.
                         released = self._release_ready_io_locked()
@@ -337,16 +340,27 @@ class SimRuntime:
                 released = True
         return released
 
-    def _lookahead_locked(self) -> tuple[int, bool]:
+    def _lookahead_locked(self) -> tuple[int, bool, bool]:
+        """(earliest deadline, DELIVERs wake, the vehicle's MAVLink wakes) for END-TICK-0.
+
+        MAVSDK's threads wait for their sockets: what the vehicle sends them wakes them. A mission of one vehicle
+        then says so (``mavlink_wakes``) and the channel wakes it at the phases after which its vehicle sent it
+        MAVLink (most phases bring none: telemetry comes at 10 Hz or less, phases at 50 Hz); a swarm mission
+        (several vehicles, no ``vehicle``) takes part in every phase."""
         native = self.native
         if self._gate_waiters or any(w.every_phase for w in self._idle.values()):
-            return EVERY_PHASE, True
-        if native is not None and native.waits_for_io():  # the library reads its vehicle's MAVLink: every phase
-            return EVERY_PHASE, True
+            return EVERY_PHASE, True, False
+        mavlink_wakes = native is not None and native.waits_for_io()
+        if mavlink_wakes and self.vehicle < 0:
+            return EVERY_PHASE, True, False
         deadlines = [w.deadline_ns for w in self._timed if not w.released and w.deadline_ns is not None]
         if native is not None and (d := native.next_deadline_ns()) != NATIVE_NO_DEADLINE:
             deadlines.append(d)
-        return min(deadlines, default=NO_DEADLINE), bool(self._inbox_waiters or self._inbox_callbacks)
+        return (
+            min(deadlines, default=NO_DEADLINE),
+            bool(self._inbox_waiters or self._inbox_callbacks),
+            mavlink_wakes,
+        )
 
     def _trace_close_locked(self, t_ns: int) -> None:
         """One line per phase 0 that ended: why each thread counted idle (``HARNESS_SIMTIME_TRACE_DIR``)."""
@@ -673,7 +687,8 @@ class SimRuntime:
     def _busy_locked(self, first_only: bool = False) -> list[tuple[threading.Thread, str]]:
         busy: list[tuple[threading.Thread, str]] = []
         frames: dict[int, FrameType] | None = None
-        for t in threading.enumerate():
+        threads = threading.enumerate()
+        for t in threads:
             ident = t.ident
             if t.name.startswith(INFRA_THREAD_PREFIX) or isinstance(t, threading._DummyThread):
                 continue
@@ -694,12 +709,19 @@ class SimRuntime:
             if frame is None:
                 continue  # the thread has ended
             code = frame.f_code
-            if (code.co_filename.rsplit("/", 1)[-1], code.co_name) in _IDLE_FRAMES:
+            where = (code.co_filename.rsplit("/", 1)[-1], code.co_name)
+            if where in _IDLE_FRAMES and not (where == _JOIN_FRAME and _joins_ended(frame, threads)):
                 continue
             busy.append((t, f"{code.co_filename}:{frame.f_lineno} in {code.co_name}"))
             if first_only:
                 break
         return busy
+
+
+def _joins_ended(frame: FrameType, threads: list[threading.Thread]) -> bool:
+    """Whether the ``Thread.join`` in ``frame`` waits for a thread whose Python part is over (see ``_JOIN_FRAME``)."""
+    joined = frame.f_locals.get("self")
+    return isinstance(joined, threading.Thread) and all(t is not joined for t in threads)
 
 
 _LIBRARY_ROOTS = tuple(

@@ -157,6 +157,8 @@ static void release_locked(tstate *t, int timed_out) {
     t->timed_out = timed_out;
     TRACE("release %d%s addr=%d fds=%d", t->index, timed_out ? " timeout" : "", t->addr != NULL, t->nfds);
     wake_fd(t->evfd);
+    if (!t->tracked)
+        poke_locked(); /* a script thread (a blocking call, destroy) runs again: the clock thread must see it */
 }
 
 static void forget_thread(void *p) {
@@ -907,11 +909,13 @@ int hs_busy(void) {
 
 /* Try to end phase 0: 1 when every tracked thread waits with nothing ready and no deadline due (the gate is
  * then closed, atomically with that check); 0 when a thread is busy or was released now (I/O first, then
- * the deadlines that fell due). */
-int hs_try_close(void) {
+ * the deadlines that fell due), or when anything changed since generation `g`, which the caller read before it
+ * found the script's threads idle: a script thread that a library thread released in between (MAVSDK's destroy
+ * and its receiver hand over back and forth) is running, though the caller saw it waiting. */
+int hs_try_close(uint64_t g) {
     pthread_mutex_lock(&mu);
     int r = 0;
-    if (busy_locked() == 0 && release_ready_locked() == 0) {
+    if (generation == g && busy_locked() == 0 && release_ready_locked() == 0) {
         int due = 0;
         fire_due_timers_locked();
         due = release_ready_locked(); /* a fired timerfd makes its epoll readable */

@@ -68,6 +68,9 @@ EVERY_PHASE: Final = 0
 """``idle_until_ns`` of a subscriber that takes part in every phase (the default)."""
 NO_DEADLINE: Final = 1 << 62
 """``idle_until_ns`` of a subscriber with no timed wait: only a WAKE (or a DELIVER it waits for) needs it."""
+MAVLINK_UNKNOWN: Final = -1
+"""END-TICK-AC ``mavlink`` of an autopilot that does not say whether it sent its missions MAVLink (a subscriber
+that waits for its vehicle's MAVLink then takes part in every phase)."""
 
 _LEN = struct.Struct(">I")
 
@@ -181,6 +184,10 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
     what happened to the vehicle at each tick since its previous END-TICK-AC, oldest first, the last at
     ``t_ns``: ground truth, motors and status, :func:`pack_tick` records back to back. The channel hands the
     last one's position to type-1 subscribers instead of the BEGIN-TICK-AC's.
+    ``mavlink``: 1 when the vehicle sent MAVLink to a mission on sim time (a socket that announced itself to it)
+    since its previous END-TICK-AC, 0 when it sent none, :data:`MAVLINK_UNKNOWN` when it does not say: the
+    channel then wakes that vehicle's mission at every phase if it waits for its vehicle's MAVLink (END-TICK-0
+    ``mavlink_wakes``).
     """
 
     t_ns: int
@@ -188,6 +195,7 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
     motors: tuple[float, ...]
     status: int = 0
     ticks: bytes = b""
+    mavlink: int = MAVLINK_UNKNOWN
 
     def __post_init__(self) -> None:  # also on decoding: a malformed record is a malformed frame
         if len(self.ticks) % TICK_BYTES:
@@ -341,11 +349,15 @@ class EndTick0(_Msg, tag="ET0", frozen=True):
     ``deliver_wakes``, a DELIVER for it arrives. :data:`EVERY_PHASE` (the default): every phase 0, as in
     the paper; :data:`NO_DEADLINE`: no timed wait at all. Its script still never runs outside phase 0 and
     every wait ends at the same phase as without lookahead; only idle phases are skipped.
+    ``mavlink_wakes``: the subscriber also waits for its vehicle's MAVLink (MAVSDK's threads read their sockets):
+    the channel wakes it at the phases after which its vehicle said it sent it some (END-TICK-AC ``mavlink``), and
+    at every phase while the vehicle does not say.
     """
 
     t_ns: int
     idle_until_ns: int = EVERY_PHASE
     deliver_wakes: bool = True
+    mavlink_wakes: bool = False
 
 
 class Packet(msgspec.Struct, array_like=True, frozen=True):

@@ -114,19 +114,21 @@ class Rig:
     def send(self, peer: Peer, msg: p.Message) -> None:
         self.guarded(lambda: self.machine.receive(peer.state, msg))
 
-    def answer_ac(self, peer: Peer) -> None:
+    def answer_ac(self, peer: Peer, mavlink: int = p.MAVLINK_UNKNOWN) -> None:
         owed = sorted(peer.owes_ac.values(), key=lambda m: m.vehicle)
         peer.owes_ac.clear()
         for m in owed:
-            self.send(peer, p.EndTickAC(m.t_ns, m.vehicle, (0.5,) * 4))
+            self.send(peer, p.EndTickAC(m.t_ns, m.vehicle, (0.5,) * 4, 0, b"", mavlink))
 
-    def answer0(self, peer: Peer, idle_until_ns: int = p.EVERY_PHASE, packets: int = 0) -> None:
+    def answer0(
+        self, peer: Peer, idle_until_ns: int = p.EVERY_PHASE, packets: int = 0, mavlink_wakes: bool = False
+    ) -> None:
         t = peer.owes0
         assert t is not None
         for k in range(packets):
             self.send(peer, p.Enqueue(p.Packet(t, peer.state.vehicle, p.BROADCAST, 14550, k, b"x")))
         peer.owes0 = None
-        self.send(peer, p.EndTick0(t, idle_until_ns))
+        self.send(peer, p.EndTick0(t, idle_until_ns, True, mavlink_wakes))
 
     def answer1(self, peer: Peer, idle_until_ns: int = p.EVERY_PHASE) -> None:
         t = peer.owes1

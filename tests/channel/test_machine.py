@@ -95,6 +95,57 @@ def test_lookahead_leaves_an_idle_mission_out_until_its_time_or_a_wake() -> None
     assert m0.owes0 == 5 * TICK_NS and rig.failure is None
 
 
+def test_a_mission_waiting_for_mavlink_runs_after_the_ticks_its_vehicle_sent_it_some() -> None:
+    """END-TICK-0 ``mavlink_wakes``: the channel wakes the mission at the phase after its vehicle said (END-TICK-AC
+    ``mavlink``) that it sent it MAVLink, at every phase while the vehicle does not say, and at its deadline."""
+    rig = Rig(vehicles=2, phase_every=2)
+    said = {0: p.MAVLINK_UNKNOWN, 1: 0}
+    for v in (0, 1):
+        rig.local_steps[v] = lambda m: p.EndTickAC(m.t_ns, m.vehicle, (0.5,) * 4, 0, b"", said[m.vehicle])
+    local = rig.machine.attach_in_process(99, (0, 1))
+    m0, m1 = rig.join(T0, "m0", vehicle=0), rig.join(T0, "m1", vehicle=1)
+
+    def two_ticks(phase_tick_sent: int, quiet_tick_sent: int) -> None:
+        """A tick with phases (in-process autopilots step, then phase 0), then a quiet one (the shell's fast path),
+        vehicle 1 saying whether it sent its mission MAVLink in each."""
+        said[1] = phase_tick_sent
+        rig.begin_tick()
+        for peer in (m0, m1):
+            if peer.owes0 is not None:
+                rig.answer0(peer, idle_until_ns=10 * TICK_NS, mavlink_wakes=True)
+        said[1] = quiet_tick_sent
+        rig.tick += 1
+        bta = [p.BeginTickAC(rig.tick * TICK_NS, rig.tick, v, 2, (0.0, 0.0, 0.0)) for v in (0, 1)]
+        assert rig.machine.local_only(bta) is local
+        rig.machine.local_tick_done(bta, [rig.local_steps[m.vehicle](m) for m in bta])
+
+    two_ticks(0, 0)  # ticks 0, 1: both missions run (no END-TICK-0 yet)
+    two_ticks(0, 0)  # 2, 3: vehicle 0 does not say (m0 runs at every phase); vehicle 1 sent nothing
+    two_ticks(1, 0)  # 4, 5: vehicle 1 sent in tick 4 — its step comes before phase 0: m1 runs at 4
+    two_ticks(0, 1)  # 6, 7: nothing at 6; tick 7 sent
+    two_ticks(0, 0)  # 8, 9: m1 runs at 8 for tick 7
+    rig.begin_tick()  # 10: m1's deadline
+    received = {
+        name: [msg.t_ns // TICK_NS for msg in peer.inbox if isinstance(msg, p.BeginTick0)]
+        for name, peer in (("m0", m0), ("m1", m1))
+    }
+    assert received == {"m0": [0, 2, 4, 6, 8, 10], "m1": [0, 4, 8, 10]} and rig.failure is None
+
+
+def test_a_mission_waiting_for_mavlink_runs_while_its_vehicle_may_still_be_sending() -> None:
+    """Without in-process autopilots phase 0 starts before the remote ones answer: a vehicle that has not answered
+    this tick may be sending now, so its mission takes part whatever the vehicle said before."""
+    rig = Rig()
+    ap = rig.join(AP, "ap", vehicles=(0,))
+    m0 = rig.join(T0, "m0", vehicle=0)
+    for _ in range(3):
+        rig.begin_tick()
+        assert m0.owes0 == rig.tick * TICK_NS
+        rig.answer0(m0, idle_until_ns=p.NO_DEADLINE, mavlink_wakes=True)
+        rig.answer_ac(ap, mavlink=0)
+    assert rig.failure is None
+
+
 def test_a_stalled_mission_is_dropped_by_the_watchdog_and_the_tick_goes_on() -> None:
     rig = Rig()
     ap = rig.join(AP, "ap", vehicles=(0,))

@@ -110,6 +110,27 @@ def test_same_seed_same_flight_byte_identical_for_mavsdk_scripts(
     _assert_byte_identical(_three_runs(tmp_path, script, duration_s=duration_s), 2, script)
 
 
+def test_a_mavsdk_mission_takes_part_only_in_the_phases_that_bring_it_something(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """MAVSDK's threads wait for their sockets; the vehicle tells the channel at which ticks it sent its mission
+    MAVLink (END-TICK-AC ``mavlink``), so the mission is left out of the phases that bring it nothing (its telemetry
+    comes at 10 Hz or less, phases at 50 Hz) and still takes part in every phase its timers need. The same-seed
+    tests above show the flight is the one it flew at every phase."""
+    traces = tmp_path / "traces"
+    traces.mkdir()
+    monkeypatch.setenv("HARNESS_SIMTIME_TRACE_DIR", str(traces))
+    run = run_harness(tmp_path / "run", MISSIONS / "takeoff_and_land_native.py", vehicles=1, seed=5, args=("5",))
+    assert run.summary["status"] == "ok", run.message
+    v = run.vehicle(0)
+    assert v.landed and v.max_altitude_m > 2.0 and run.summary["vehicles"][0]["mission_exit_code"] == 0
+    lines = (traces / "simclock-0.trace").read_text().splitlines()
+    taken = sum(1 for line in lines if line.split(" ", 2)[1:2] == ["close"])
+    phases = round(run.summary["sim_time_s"] / 0.02)
+    print(f"FIGURE phases taken part in: {taken} of {phases}")
+    assert 0.1 * phases < taken < 0.5 * phases
+
+
 def test_same_seed_same_flight_byte_identical_for_a_swarm_script(tmp_path: Path) -> None:
     """One gRPC-API script commanding 10 vehicles (``missions/formation.py``: a ``System`` each, telemetry streams
     and offboard velocity at 10 Hz): byte for byte, at max speed twice and at x5, to 30 s (the V formed up).

@@ -229,6 +229,20 @@ def test_a_futex_wait_is_idle_until_woken(lib: tuple[ctypes.CDLL, native.NativeC
     assert test_lib.futex_result() == 0
 
 
+def test_a_phase_does_not_end_on_a_look_taken_before_a_change(
+    lib: tuple[ctypes.CDLL, native.NativeClock], drive: Driver
+) -> None:
+    """The runtime reads the generation, finds the script's threads idle, then asks to close: a change in between
+    (a library thread released a script thread blocked in the library) keeps the phase open."""
+    _, clock = lib
+    clock.begin(drive.t_ns)
+    seen = clock.generation()
+    clock.poke()
+    assert not clock.try_close(seen)
+    assert clock.try_close(clock.generation())
+    drive.t_ns += drive.period_ns
+
+
 def test_poll_with_a_timeout_is_a_timed_wait(lib: tuple[ctypes.CDLL, native.NativeClock], drive: Driver) -> None:
     test_lib, clock = lib
     t0 = drive.t_ns

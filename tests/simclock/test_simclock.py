@@ -7,14 +7,16 @@ import datetime
 import json
 import queue
 import socket
+import sys
 import threading
 import time
+from types import FrameType
 
 import pytest
 
 from harness.channel import Channel, ChannelConfig
 from harness.channel.drivers import run_fake_physics
-from harness.simclock import patch
+from harness.simclock import patch, runtime
 from harness.simclock.runtime import SimRuntime
 from tests.helpers import wait_until
 
@@ -199,6 +201,33 @@ def test_a_thread_waiting_for_the_gate_is_never_counted_idle_without_being_queue
     assert not waiter.is_alive() and not ended_without_it, "the phase ended without the thread waiting for it"
     rt._gate_open = True
     rt.wait_gate()  # phase 0 is on: no wait at all
+
+
+def test_a_join_counts_idle_only_while_the_joined_thread_still_runs_python() -> None:
+    """``Thread.join`` ends when the joined thread's OS thread ends, after its Python part left
+    ``threading.enumerate()``: counted idle then, the phase closed and the join returned between phases, on the
+    wall clock (asyncio.run's executor shutdown ended a MAVSDK script one or two phases late in some runs)."""
+    rt = SimRuntime(epoch_ns=0, phase_period_ns=20_000_000)
+    release = threading.Event()
+    joined = threading.Thread(target=release.wait, daemon=True)
+    joined.start()
+    joiner = threading.Thread(target=joined.join, daemon=True)
+    joiner.start()
+    assert joiner.ident is not None
+
+    def joiner_frame() -> FrameType | None:
+        frame = sys._current_frames().get(joiner.ident or 0)
+        return frame if frame is not None and frame.f_code.co_name == "_wait_for_tstate_lock" else None
+
+    wait_until(lambda: joiner_frame() is not None, timeout_s=5.0, what="the joiner waits in join")
+    frame = joiner_frame()
+    assert frame is not None
+    with rt._mu:
+        assert joiner not in [t for t, _ in rt._busy_locked()], "joining a running thread is idle"
+    assert not runtime._joins_ended(frame, threading.enumerate())
+    assert runtime._joins_ended(frame, [t for t in threading.enumerate() if t is not joined])
+    release.set()
+    joiner.join(5.0)
 
 
 def test_a_pool_starts_a_thread_for_work_no_waiting_worker_can_take() -> None:

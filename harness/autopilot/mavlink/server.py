@@ -401,6 +401,11 @@ class MavlinkServer:
     def _loop_t_ns(self) -> int:
         return max(self._t_ns, self.api.telemetry.state().t_ns)
 
+    def sim_sent(self) -> int:
+        """MAVLink sent so far to peers on sim time (the run's missions), by any thread: the vehicle's host tells the
+        channel at each phase whether it moved (END-TICK-AC ``mavlink``), so a mission waiting for it is woken."""
+        return sum(link.sim_sent for link in self.links)
+
     def _sim_peers(self) -> bool:
         """Whether a peer that lives on sim time (a mission) talks to this vehicle."""
         return any(link.has_sim_peers for link in self.links)

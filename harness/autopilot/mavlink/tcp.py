@@ -61,6 +61,7 @@ class TcpLink:
         1 Hz wall heartbeat, wall-rate telemetry) is not sent to them, so the same seed gives the same flight."""
         self.send_timeout_s = send_timeout_s
         self.send_errors = 0
+        self.sim_sent = 0
         self.recv_errors = 0
         listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         try:
@@ -253,6 +254,8 @@ class TcpLink:
             return False
         try:
             conn.sendall(data)
+            if self.sim_clients:
+                self.sim_sent += 1
             return True
         except OSError as e:
             self.send_errors += 1

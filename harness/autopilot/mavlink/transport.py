@@ -111,6 +111,8 @@ class Link(Protocol):
 
     name: str
     send_errors: int
+    sim_sent: int
+    """Datagrams (or frames) sent so far to peers on sim time: what wakes a mission waiting for MAVLink."""
 
     @property
     def sock(self) -> socket.socket: ...
@@ -143,6 +145,7 @@ class UdpLink:
         self._greeted_ns = 0
         self.send_errors = 0
         self.recv_errors = 0
+        self.sim_sent = 0
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -241,6 +244,8 @@ class UdpLink:
     def send(self, data: bytes, addr: Address) -> bool:
         try:
             self.sock.sendto(data, addr)
+            if addr in self._sim_peers:
+                self.sim_sent += 1
             return True
         except OSError as e:
             if e.errno != errno.ECONNREFUSED:
