@@ -38,8 +38,10 @@ class NativeLink:
         mavlink_sent: Mapping[int, Callable[[], int]] | None = None,
     ) -> None:
         """``mavlink_sent``: by local vehicle, how much MAVLink its server has sent to missions on sim time so far
-        (``MavlinkServer.sim_sent``); each END-TICK-AC then says whether that moved (``mavlink``)."""
+        (``MavlinkServer.sim_sent``); the END-TICK-AC of each tick with phases then says whether that moved since the
+        last (``mavlink``), as a host's do."""
         self.channel = channel
+        self._phase_every = channel.config.phase_every
         self._local = dict(local or {})
         self._frames: dict[int, SensorFrame] = {}
         self._sent = dict(mavlink_sent or {})
@@ -53,7 +55,7 @@ class NativeLink:
         motors = stack.step(self._frames[v])
         status = p.pack_status(*stack.tick_status())
         sent = self._sent.get(v)
-        if sent is None:
+        if sent is None or m.tick % self._phase_every:
             return p.EndTickAC(m.t_ns, v, motors, status)
         n = sent()  # after the step: what its bell sent in this tick counts
         moved = n != self._sent_seen[v]

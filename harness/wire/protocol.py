@@ -185,9 +185,9 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
     ``t_ns``: ground truth, motors and status, :func:`pack_tick` records back to back. The channel hands the
     last one's position to type-1 subscribers instead of the BEGIN-TICK-AC's.
     ``mavlink``: 1 when the vehicle sent MAVLink to a mission on sim time (a socket that announced itself to it)
-    since its previous END-TICK-AC, 0 when it sent none, :data:`MAVLINK_UNKNOWN` when it does not say: the
-    channel then wakes that vehicle's mission at every phase if it waits for its vehicle's MAVLink (END-TICK-0
-    ``mavlink_wakes``).
+    since its previous END-TICK-AC that said, 0 when it sent none, :data:`MAVLINK_UNKNOWN` when it does not say
+    (our autopilots say at the ticks with phases): until a vehicle has said, the channel wakes its mission at every
+    phase if the mission waits for its vehicle's MAVLink (END-TICK-0 ``mavlink_wakes``).
     """
 
     t_ns: int
