@@ -528,7 +528,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if a.verbose > 1 else logging.INFO if a.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
-    if a.verbose == 0:
+    if a.verbose == 0 and a.command != "mission":  # (a mission records nothing: no Rerun, no mcap to import)
         from harness.record.sink import QUIET_RERUN_LOG
 
         os.environ.setdefault("RUST_LOG", QUIET_RERUN_LOG)
