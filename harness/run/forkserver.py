@@ -237,7 +237,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     req_fd, rep_fd, *preload = args
     for module in preload:
-        importlib.import_module(module)
+        if module.endswith("?"):  # where it is installed
+            with contextlib.suppress(ImportError):
+                importlib.import_module(module[:-1])
+        else:
+            importlib.import_module(module)
     return serve(int(req_fd), int(rep_fd))
 
 

@@ -19,6 +19,7 @@ if __name__ == "__main__":
                 "pid": os.getpid(),
                 "cwd": os.getcwd(),
                 "main": __name__,
+                "wave": "wave" in sys.modules,  # preloaded by the fork server (test_forkserver), not imported here
             }
         )
     )

@@ -49,6 +49,14 @@ def test_forked_children_run_as_python_dash_m_with_their_own_env_files_and_group
     assert not pids_with_run_dir(tmp_path), "the server ended with the run"
 
 
+def test_an_optional_preload_is_imported_where_installed_and_skipped_where_not(tmp_path: Path) -> None:
+    """``fork_preload`` names ending in ``?`` (MAVSDK for missions): imported once by the server when installed,
+    and a missing one does not keep the server from starting."""
+    with Children(tmp_path, fork_preload=(CHILD, "wave?", "no_such_module_here?")) as sup:
+        assert sup.start("a", _argv("0"), _env(tmp_path, "first"), forked=True).wait(30) == 0
+    assert json.loads((tmp_path / "a.stdout").read_text())["wave"] is True
+
+
 def test_stop_ends_a_forked_child_that_still_runs(tmp_path: Path) -> None:
     sup = Children(tmp_path, grace_s=1.0, fork_preload=(CHILD,))
     slow = sup.start("slow", _argv("0", "60"), _env(tmp_path, "x"), forked=True)
