@@ -493,16 +493,18 @@ class TickMachine(Membership):
         deadline = self.watchdog.deadline(self.stall_timeout_s)
         t = self.t_ns
         what = f"END-TICK-0 of tick {self.tick}"
+        woken_by_mavlink = []
         for peer in list(peers):
             if peer.kind == p.PeerKind.TYPE0 and not self._needs_phase0(peer, t):
                 continue  # idle by its own lookahead: nothing of it can run in this phase
             peer.woken = peer.delivered = False
             if peer.mavlink_wakes:
-                self._mavlink_sent.discard(peer.vehicle)
+                woken_by_mavlink.append(peer.vehicle)
             self.wait0.add(peer)
             self.watchdog.arm(peer.pid, deadline)
             peer.waiting_for = what
             self.send_raw(peer, data)
+        self._mavlink_sent.difference_update(woken_by_mavlink)  # (after the loop: two missions of one vehicle)
 
     def _needs_phase0(self, peer: PeerState, t: int) -> bool:
         """Whether a type-0 subscriber takes part in phase 0 at ``t``: its lookahead (END-TICK-0) has a timed wait

@@ -237,8 +237,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     req_fd, rep_fd, *preload = args
     for module in preload:
-        if module.endswith("?"):  # where it is installed
-            with contextlib.suppress(ImportError):
+        if module.endswith("?"):  # where it imports: else each child meets (and reports) the failure itself
+            with contextlib.suppress(Exception):
                 importlib.import_module(module[:-1])
         else:
             importlib.import_module(module)
