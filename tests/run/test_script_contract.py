@@ -11,9 +11,14 @@ from pathlib import Path
 import pytest
 
 from harness.pytest_plugin import RunRecord, VehicleRecord, run_harness
+from harness.simclock import native
 from tests.run.flights import MISSIONS
 
 pytestmark = pytest.mark.sim
+needs_shim = pytest.mark.skipif(
+    native.compiler() is None,
+    reason="no C compiler: MAVSDK's threads cannot be put on the sim clock (simtime.c), they keep the wall clock",
+)
 
 
 @pytest.mark.parametrize("script", ["pymavlink_takeoff.py", "dronekit_takeoff.py"])
@@ -100,6 +105,7 @@ def test_same_seed_same_flight_byte_identical_for_socket_scripts(tmp_path: Path,
         ("square_native.py", 30),  # native API (asyncio): a square mission driven by its telemetry streams
     ],
 )
+@needs_shim
 def test_same_seed_same_flight_byte_identical_for_mavsdk_scripts(
     tmp_path: Path, script: str, duration_s: float
 ) -> None:
@@ -110,6 +116,7 @@ def test_same_seed_same_flight_byte_identical_for_mavsdk_scripts(
     _assert_byte_identical(_three_runs(tmp_path, script, duration_s=duration_s), 2, script)
 
 
+@needs_shim
 def test_a_mavsdk_mission_takes_part_only_in_the_phases_that_bring_it_something(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -131,6 +138,7 @@ def test_a_mavsdk_mission_takes_part_only_in_the_phases_that_bring_it_something(
     assert 0.1 * phases < taken < 0.5 * phases
 
 
+@needs_shim
 def test_same_seed_same_flight_byte_identical_for_a_swarm_script(tmp_path: Path) -> None:
     """One gRPC-API script commanding 10 vehicles (``missions/formation.py``: a ``System`` each, telemetry streams
     and offboard velocity at 10 Hz): byte for byte, at max speed twice and at x5, to 30 s (the V formed up).
