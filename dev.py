@@ -59,7 +59,12 @@ def setup(extras: str) -> None:
     if (ROOT / "harness" / "_native.json").is_file():
         print("the per-vehicle core is compiled (mypyc, harness/core/native.py); HARNESS_PURE=1 runs it as Python")
     else:
-        print("the per-vehicle core is not compiled (no C compiler, or its build failed): pure Python, same results")
+        why = (
+            "HARNESS_PURE is set"
+            if os.environ.get("HARNESS_PURE", "0") not in ("", "0")
+            else "no C compiler, or its build failed"
+        )
+        print(f"the per-vehicle core is not compiled ({why}): pure Python, same results")
     if "dev" in extras.split(","):
         # The MAVProxy test: MAVProxy's console needs only what the dev extra lists (pymavlink, pyserial,
         # defusedxml, pynmeagps); its declared opencv/vtk/matplotlib serve map and 3-D modules we do not load.
