@@ -145,7 +145,7 @@ def serve_worker(
     autopilots: dict[int, Autopilot],
     physics: Physics,
     stop: threading.Event | None = None,
-    mavlink_sent: Mapping[int, Callable[[], int]] | None = None,
+    mavlink_sent: Mapping[int, Callable[[], bool]] | None = None,
 ) -> int:
     """Fly ``autopilots`` and step their ``physics`` (a worker of ``harness run --workers``) until the run
     ends; returns the number of ticks stepped.
@@ -156,7 +156,8 @@ def serve_worker(
     through every tick up to the next phase tick, whose autopilot step is ready when that BEGIN-TICK-AC
     arrives. The END-TICK-AC then carry every tick since the last (truth, motors, status), and the
     physics steps once they are sent, while the root runs the phases. With ``mavlink_sent`` (by vehicle, its
-    MAVLink server's ``sim_sent``) each END-TICK-AC says whether the vehicle sent its mission MAVLink since the last.
+    MAVLink server's ``sent_to_missions``) each END-TICK-AC says whether the vehicle sent its mission MAVLink since
+    the last.
     """
     if sorted(physics.owned) != sorted(autopilots):
         raise ScenarioError(
@@ -166,7 +167,6 @@ def serve_worker(
     ticks, next_phase_ns = 0, 0
     records: dict[int, list[bytes]] = {v: [] for v in owned}
     sent = dict(mavlink_sent or {})
-    seen = dict.fromkeys(sent, 0)
     inbox, phases = _Inbox(client), _Inbox(clock)
     while stop is None or not stop.is_set():
         while True:  # every tick up to the next phase tick, the autopilots of that one included
@@ -190,11 +190,8 @@ def serve_worker(
         t_ns = physics.t_ns
         out: list[p.Message] = []
         for v, (m, status) in zip(owned, answers, strict=True):
-            mavlink = p.MAVLINK_UNKNOWN
-            count = sent.get(v)
-            if count is not None:
-                n = count()
-                mavlink, seen[v] = (1 if n != seen[v] else 0), n
+            told = sent.get(v)
+            mavlink = p.MAVLINK_UNKNOWN if told is None else 1 if told() else 0
             out.append(p.EndTickAC(t_ns, v, m, status, b"".join(records[v]), mavlink))
             records[v].clear()
         client.send_many(out)
@@ -236,7 +233,7 @@ def run_autopilots(
     stop: threading.Event | None = None,
     autopilots: dict[int, Autopilot] | None = None,
     physics: Physics | None = None,
-    mavlink_sent: Mapping[int, Callable[[], int]] | None = None,
+    mavlink_sent: Mapping[int, Callable[[], bool]] | None = None,
 ) -> dict[int, Autopilot]:
     """Fly ``vehicles`` in lockstep with the channel at ``address`` until the run ends.
 

@@ -299,7 +299,7 @@ def serve(cfg: AutopilotProcessConfig) -> int:
             )
             attached.append(attach_mavlink(autopilot, ports, run_dir, signing, hub, fw, trust))
         hub.start()  # once every server is in: an add to a running hub waits for its thread
-        sent = {h.server.vehicle: h.server.sim_sent for h in attached}
+        sent = {h.server.vehicle: h.server.sent_to_missions for h in attached}
         run_autopilots(cfg.address, vehicles, autopilots=aps, name=cfg.name, physics=physics, mavlink_sent=sent)
     except HarnessError as exc:
         log.error("%s", exc)

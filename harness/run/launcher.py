@@ -473,7 +473,7 @@ class Launcher:
         end_ns = None if plan.duration_s is None else round(plan.duration_s * NS_PER_S)
         missions = _mission_count(plan)
         frames = phys.frames()
-        link = NativeLink(channel, run.aps, {h.server.vehicle: h.server.sim_sent for h in run.attached})
+        link = NativeLink(channel, run.aps, {h.server.vehicle: h.server.sent_to_missions for h in run.attached})
         paused_once = False
         wall0 = self.clock.now_ns()
         pacer = Pacer(plan.speed, wall0) if plan.speed is not None else None

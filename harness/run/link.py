@@ -35,17 +35,16 @@ class NativeLink:
         self,
         channel: Channel,
         local: Mapping[int, LocalFlightStack] | None = None,
-        mavlink_sent: Mapping[int, Callable[[], int]] | None = None,
+        mavlink_sent: Mapping[int, Callable[[], bool]] | None = None,
     ) -> None:
-        """``mavlink_sent``: by local vehicle, how much MAVLink its server has sent to missions on sim time so far
-        (``MavlinkServer.sim_sent``); the END-TICK-AC of each tick with phases then says whether that moved since the
-        last (``mavlink``), as a host's do."""
+        """``mavlink_sent``: by local vehicle, whether its server sent MAVLink to missions on sim time since the last
+        call (``MavlinkServer.sent_to_missions``): the END-TICK-AC of each tick with phases says so (``mavlink``), as
+        a host's do."""
         self.channel = channel
         self._phase_every = channel.config.phase_every
         self._local = dict(local or {})
         self._frames: dict[int, SensorFrame] = {}
         self._sent = dict(mavlink_sent or {})
-        self._sent_seen = dict.fromkeys(self._sent, 0)
         if self._local:
             channel.attach_local_autopilots(self._local, self._step_local)
 
@@ -57,10 +56,8 @@ class NativeLink:
         sent = self._sent.get(v)
         if sent is None or m.tick % self._phase_every:
             return p.EndTickAC(m.t_ns, v, motors, status)
-        n = sent()  # after the step: what its bell sent in this tick counts
-        moved = n != self._sent_seen[v]
-        self._sent_seen[v] = n
-        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if moved else 0)
+        # after the step: what its bell sent in this tick counts
+        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if sent() else 0)
 
     def exchange(
         self, t_ns: int, tick: int, frames: Sequence[SensorFrame], elsewhere: Mapping[int, Vec3] | None = None

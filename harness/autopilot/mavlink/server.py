@@ -148,6 +148,8 @@ class MavlinkServer:
         self._home_try_ns: int | None = None
         self._stepping = False
         self._first_t_ns: int | None = None
+        self._sim_sent_told = 0
+        """``sim_sent()`` at the last ``sent_to_missions()``."""
         """True while the autopilot's stepping thread services this server (the bell), at sim time."""
         self.codec = Codec(self.sysid, self.compid, signing, clock.unix_ns)
         mav = self.codec.mav
@@ -402,9 +404,15 @@ class MavlinkServer:
         return max(self._t_ns, self.api.telemetry.state().t_ns)
 
     def sim_sent(self) -> int:
-        """MAVLink sent so far to peers on sim time (the run's missions), by any thread: the vehicle's host tells the
-        channel at each phase whether it moved (END-TICK-AC ``mavlink``), so a mission waiting for it is woken."""
+        """MAVLink sent so far to peers on sim time (the run's missions), by any thread."""
         return sum(link.sim_sent for link in self.links)
+
+    def sent_to_missions(self) -> bool:
+        """Whether this vehicle sent MAVLink to peers on sim time since the last call: its host tells the channel at
+        each tick with phases (END-TICK-AC ``mavlink``), so a mission waiting for it is woken. One caller: the host."""
+        n = self.sim_sent()
+        moved, self._sim_sent_told = n != self._sim_sent_told, n
+        return moved
 
     def _sim_peers(self) -> bool:
         """Whether a peer that lives on sim time (a mission) talks to this vehicle."""
