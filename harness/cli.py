@@ -313,16 +313,40 @@ def _cmd_view(a: argparse.Namespace, rest: list[str]) -> int:
 
 
 def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
-    import harness
+    from harness.bundled import DEMO, example
 
-    demo = Path(harness.__file__).resolve().parent.parent / "missions" / "swarm_demo.py"
-    if not demo.is_file():
-        raise ScenarioError(f"the demo mission {demo} is missing (run the demo from a clone of the repository)")
-    a.mission = [str(demo)]
+    a.mission = [str(example(DEMO).path)]
     a.vehicles = a.vehicles or 3
     a.network = a.network or "builtin"  # the swarm flocks over the radio
     a.plot = True
     return _cmd_run(a, rest)
+
+
+def _cmd_examples(a: argparse.Namespace, rest: list[str]) -> int:
+    """List the example missions, or copy some into a folder."""
+    from harness.bundled import copy_examples, examples, examples_dir
+
+    if a.action == "list":
+        if a.names or a.all:
+            raise ScenarioError("`harness examples` lists them all; to copy some: harness examples copy NAME…")
+        items = examples()
+        width = max(len(e.name) for e in items)
+        for e in items:
+            print(f"{e.name:<{width}}  {e.summary}")
+        print(f"\n{len(items)} example missions in {examples_dir()}")
+        print(
+            "copy one here: harness examples copy takeoff_and_land.py; fly it: harness run --mission takeoff_and_land.py"
+        )
+        return 0
+    if a.action == "path":
+        print(examples_dir())
+        return 0
+    if bool(a.names) == a.all:
+        raise ScenarioError("name the examples to copy (`harness examples` lists them), or give --all alone")
+    names = [e.name for e in examples()] if a.all else a.names
+    for path in copy_examples(names, Path(a.to), force=a.force):
+        print(path)
+    return 0
 
 
 def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
@@ -421,9 +445,19 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--join-timeout", type=float, default=600.0, help="wall seconds to wait for the remote vehicles")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("uav-harness")
+    except PackageNotFoundError:
+        return "(not installed: run from a source tree)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = ct.OneLineParser(prog="harness", description="Lockstep co-simulation of multirotor UAV swarms.")
     ap.add_argument("-v", "--verbose", action="count", default=0)
+    ap.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="a headless batch run: physics, autopilots, network and missions")
@@ -438,10 +472,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser(
         "demo",
-        help="3 vehicles flock over the radio to a waypoint and home (missions/swarm_demo.py); plots and 3D view",
+        help="3 vehicles flock over the radio to a waypoint and home (the swarm_demo.py example); plots and 3D view",
     )
     _add_run_options(d)
     d.set_defaults(func=_cmd_demo)
+
+    ex = sub.add_parser("examples", help="list the example missions, or copy some into a folder of yours")
+    ex.add_argument("action", nargs="?", choices=("list", "copy", "path"), default="list")
+    ex.add_argument("names", nargs="*", metavar="NAME", help="examples to copy (e.g. takeoff_and_land.py)")
+    ex.add_argument("--all", action="store_true", help="copy every example")
+    ex.add_argument("--to", default=".", metavar="DIR", help="folder to copy them into (default: this one)")
+    ex.add_argument("--force", action="store_true", help="overwrite files of the same name there")
+    ex.set_defaults(func=_cmd_examples)
 
     st = sub.add_parser("sitl", help="vehicles at real time for QGroundControl and hand-run scripts")
     _add_run_options(st)

@@ -17,9 +17,9 @@ import math
 from dataclasses import dataclass
 
 from harness.autopilot.api import CommandResult
-from harness.autopilot.mavlink.ardupilot.copter_table import TABLE
 from harness.autopilot.param_table import ParamTable, parse_param_table
 from harness.autopilot.params import ParamDef, Params, ParamType
+from harness.autopilot.params_data import copter_text
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +146,7 @@ _INT32 = (-2147483648.0, 2147483647.0)
 
 def copter_table() -> ParamTable:
     """ArduCopter's parameter table (read once per process)."""
-    return parse_param_table(TABLE, "ArduCopter's parameter table")
+    return parse_param_table(copter_text(), "ArduCopter's parameter table (params_data/copter_params.tsv)")
 
 
 def stored_value(ptype: ParamType, value: float) -> float:
