@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import shlex
 import subprocess
 from pathlib import Path
 
@@ -136,3 +137,38 @@ def test_the_outside_reference_check_tells_a_note_from_a_page_of_docs() -> None:
         f"/shared/{note}",
     ]
     assert outside_references("see docs/design.md, docs/mavlink.md and --out /shared/runs/wind") == []
+
+
+PENDING_COMMANDS = {"examples"}
+"""Subcommands the README shows before they exist on this branch (issue 32 adds ``harness examples``): their
+lines are checked once the parser has them."""
+
+
+def readme_commands() -> list[list[str]]:
+    """The ``harness`` command lines of the README's shell blocks, continuation lines joined, comments and
+    the mission's arguments after ``--`` left out."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    commands = []
+    for block in re.findall(r"```sh\n(.*?)```", text, flags=re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            words = shlex.split(line, comments=True)
+            if words and words[0] in ("harness", ".venv/bin/harness"):
+                commands.append(words[1 : words.index("--")] if "--" in words else words[1:])
+    return commands
+
+
+def test_every_harness_command_of_the_readme_parses() -> None:
+    from harness.cli import build_parser
+
+    parser = build_parser()
+    known = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    commands = readme_commands()
+    assert {"run", "sitl", "sweep", "join", "view"} <= {c[0] for c in commands}, commands
+    for words in commands:
+        if words[0] in PENDING_COMMANDS - known:
+            continue
+        try:
+            _, unknown = parser.parse_known_args(words)
+        except SystemExit:
+            pytest.fail(f"README: `harness {shlex.join(words)}` does not parse (see the error above)")
+        assert not unknown, f"README: `harness {shlex.join(words)}`: unknown arguments {unknown}"
