@@ -20,7 +20,7 @@ Handshake (one round trip and a half, on every new connection)::
 
 ``auth`` is HMAC-SHA256(secret, nonce || name) when the channel requires a shared secret, else empty.
 
-One tick (see DESIGN.md, "The tick")::
+One tick (see docs/design.md, "The tick")::
 
     physics  -> channel   BEGIN-TICK-AC(t, vehicle, ...)  one per vehicle     (BeginTickAC)
     channel  -> autopilot BEGIN-TICK-AC                                        (forwarded)

@@ -1,7 +1,7 @@
 """The ArduCopter personality: identity, modes, commands and streams of ArduCopter over the flight core.
 
-What DroneKit, MAVProxy and pymavlink scripts written for ArduPilot rely on (facts in /shared/MAVLINK.md,
-"The ArduCopter dialect"):
+What DroneKit, MAVProxy and pymavlink scripts written for ArduPilot rely on (facts in docs/mavlink.md,
+"What clients expect", the ArduCopter dialect):
 
 - HEARTBEAT autopilot ARDUPILOTMEGA, custom_mode = the ArduCopter mode number (:mod:`.modes`); DO_SET_MODE
   (param2 = mode number) and SET_MODE; unsupported modes refused with a reason.
