@@ -139,11 +139,6 @@ def test_the_outside_reference_check_tells_a_note_from_a_page_of_docs() -> None:
     assert outside_references("see docs/design.md, docs/mavlink.md and --out /shared/runs/wind") == []
 
 
-PENDING_COMMANDS = {"examples"}
-"""Subcommands the README shows before they exist on this branch (issue 32 adds ``harness examples``): their
-lines are checked once the parser has them."""
-
-
 def readme_commands() -> list[list[str]]:
     """The ``harness`` command lines of the README's shell blocks, continuation lines joined, comments and
     the mission's arguments after ``--`` left out."""
@@ -161,12 +156,9 @@ def test_every_harness_command_of_the_readme_parses() -> None:
     from harness.cli import build_parser
 
     parser = build_parser()
-    known = set(parser._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
     commands = readme_commands()
-    assert {"run", "sitl", "sweep", "join", "view"} <= {c[0] for c in commands}, commands
+    assert {"run", "sitl", "sweep", "join", "view", "examples"} <= {c[0] for c in commands}, commands
     for words in commands:
-        if words[0] in PENDING_COMMANDS - known:
-            continue
         try:
             _, unknown = parser.parse_known_args(words)
         except SystemExit:
