@@ -42,11 +42,13 @@ from harness.autopilot.manual import ManualControl
 from harness.autopilot.mission import MissionPlans
 from harness.autopilot.offboard import OffboardInput
 from harness.autopilot.params import Params
+from harness.autopilot.simworld import SimWorld
 from harness.autopilot.supervisor import Supervisor
 from harness.autopilot.telemetry import TelemetryBell, TelemetryFeed
 from harness.core.clock import WALL, Clock
 from harness.core.errors import ScenarioError
 from harness.core.geo import GeoRef
+from harness.fdm.environment import WorldChange
 from harness.fdm.frame import SensorFrame
 
 _MODE_NUMBERS: dict[FlightMode, tuple[int, int]] = {m: (int(m.value[0]), int(m.value[1])) for m in FlightMode}
@@ -101,6 +103,7 @@ class Autopilot:
         self.mission = MissionPlans(self, self.action)
         self.gripper = Grippers(self)
         self.gimbal = GimbalDevice(self)
+        self.world = SimWorld(self.params, lambda: self.core.battery)
         self.telemetry = TelemetryFeed(self, self.failure, self.gripper)
         self.bell = TelemetryBell()
         self.log_files = FlightLogFiles(self)
@@ -118,7 +121,12 @@ class Autopilot:
             c = self.core
             failure = self.failure
             self.manual_control.pre_step()
-            motors = c.motors = failure.motors(c.step(failure.sensors(frame)))
+            world = self.world
+            if world.active:  # SIM_* sensor and motor knobs (ArduPilot SITL's)
+                frame = world.sensors(frame)
+                motors = c.motors = world.motors(failure.motors(c.step(failure.sensors(frame))))
+            else:
+                motors = c.motors = failure.motors(c.step(failure.sensors(frame)))
             gimbal = self.gimbal
             if gimbal.used:
                 gimbal.step(c.t_ns, c.est)
@@ -147,6 +155,10 @@ class Autopilot:
         if ring is not None:  # outside the lock: the MAVLink side reads the state through the locked services
             ring()
         return motors
+
+    def take_world_change(self) -> WorldChange | None:
+        """The SIM_* change for the physics since the last call (applied before the physics step after this tick)."""
+        return self.world.take_change(self.core.t_ns) if self.world.pending else None
 
     def tick_status(self) -> TickStatus:
         """Armed, landed state, PX4 mode and the gimbal's attitude (None while unused), for END-TICK-AC

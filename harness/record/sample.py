@@ -64,3 +64,5 @@ class WorldEvent(enum.StrEnum):
     PAUSED = "paused"
     RESUMED = "resumed"
     CRASH = "crash"
+    SIM = "sim"
+    """A vehicle's simulated world changed (``SIM_*``): the wind, the pace."""

@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import msgspec
+
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.channel import Channel, ChannelConfig
@@ -36,6 +38,7 @@ from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import RecordingError, first_per_file, lost_message, writable_dir
+from harness.fdm.environment import decode_changes
 from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
 from harness.fdm.sensors import SensorConfig
 from harness.net.process_config import NetworkProcessConfig
@@ -179,7 +182,8 @@ class Launcher:
             seed=plan.seed,
             substep_hz=plan.physics_hz,
             tick_hz=plan.tick_hz,
-            origin=WorldOrigin(*plan.origin),
+            origin=WorldOrigin(*plan.world_origin),
+            heading_deg=plan.heading_deg or 0.0,
             wind=WindConfig(steady_ned_m_s=plan.wind_ned_m_s, turbulence=plan.turbulence),
             spawn_ned_m=plan.spawn_ned_m,
             sensors=SensorConfig.for_gps(plan.gps, noise=plan.sensor_noise),
@@ -212,7 +216,7 @@ class Launcher:
         settled: list[str] = []
         # a mission the channel saw only disconnect (os._exit, kill -9): its process says how it ended
         stack.callback(lambda: settled.extend(settle(channel.mission_exits, sup.procs, mission_process(plan), 2.0)))
-        world = open_world(plan.out, self.epoch_ns, n, plan.origin, serve_port=plan.view_port)
+        world = open_world(plan.out, self.epoch_ns, n, plan.world_origin, serve_port=plan.view_port)
         stack.callback(world.close)
         local = stack.enter_context(contextlib.ExitStack())
         stack.callback(channel.close, "end of run")
@@ -357,6 +361,7 @@ class Launcher:
                     vehicle=i,
                     params={
                         **core_param_defaults(plan.firmware_of(i)),
+                        "SIM_SPEEDUP": plan.speed or 0.0,
                         **(plan.params[i] if i < len(plan.params) else {}),
                     },
                 ),
@@ -389,7 +394,8 @@ class Launcher:
         (100 process starts take long enough on a busy machine for the first ones' handshakes to time out)."""
         plan = self.plan
         env = tree.secret_env(dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out)), plan.secret)
-        overrides = {i: dict(p) for i, p in enumerate(plan.params) if p}
+        pace = {"SIM_SPEEDUP": plan.speed or 0.0}  # the run's pace, as ArduPilot's SIM_SPEEDUP reads it
+        overrides = {i: pace | (plan.params[i] if i < len(plan.params) else {}) for i in range(plan.vehicles)}
         for k, group in enumerate(self._autopilot_groups()):
             name = f"autopilot-{k}" if k else "autopilot"
             config = AutopilotProcessConfig(
@@ -525,6 +531,8 @@ class Launcher:
                 else:
                     motors[e.vehicle] = row.motors[e.vehicle] = e.motors
                     row.status[e.vehicle] = e.status
+                if e.world:  # SIM_* from the vehicle's autopilot: before the next physics step
+                    pacer = self._world_changed(e.vehicle, e.world, phys, world, pacer)
             done = list(ledger.complete())
             if done:
                 self.record_rows(done, record_every, summaries, world)
@@ -539,6 +547,22 @@ class Launcher:
             if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
                 last_progress = self.clock.now_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
+
+    def _world_changed(
+        self, vehicle: int, data: bytes, phys: Physics, world: WorldSink, pacer: Pacer | None
+    ) -> Pacer | None:
+        """Apply and record the changes of ``vehicle``'s simulated world (a host's vehicle: applied there); a new
+        ``SIM_SPEEDUP`` paces the run from now on (0: as fast as possible). Returns the pacer."""
+        for change in decode_changes(data):
+            phys.apply(vehicle, change)
+            world.event(change.t_ns, WorldEvent.SIM, {"vehicle": vehicle, **msgspec.structs.asdict(change)})
+            if change.speedup is not None:
+                now = self.clock.now_ns()
+                if change.speedup > 0:
+                    pacer = Pacer(change.speedup, now - int(change.t_ns / change.speedup))
+                else:
+                    pacer = None
+        return pacer
 
     @staticmethod
     def record_rows(rows: list[Row], record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:

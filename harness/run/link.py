@@ -13,6 +13,7 @@ from typing import Protocol
 from harness.autopilot.api import TickStatus
 from harness.channel import Channel
 from harness.core.geo import Vec3
+from harness.fdm.environment import WorldChange, encode_changes
 from harness.fdm.frame import SensorFrame, encode_frame
 from harness.wire import protocol as p
 
@@ -22,6 +23,7 @@ class LocalFlightStack(Protocol):
 
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]: ...
     def tick_status(self) -> TickStatus: ...
+    def take_world_change(self) -> WorldChange | None: ...
 
 
 class NativeLink:
@@ -53,11 +55,13 @@ class NativeLink:
         stack = self._local[v]
         motors = stack.step(self._frames[v])
         status = p.pack_status(*stack.tick_status())
+        change = stack.take_world_change()
+        world = b"" if change is None else encode_changes([change])
         sent = self._sent.get(v)
         if sent is None or m.tick % self._phase_every:
-            return p.EndTickAC(m.t_ns, v, motors, status)
+            return p.EndTickAC(m.t_ns, v, motors, status, world=world)
         # after the step: what its bell sent in this tick counts
-        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if sent() else 0)
+        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if sent() else 0, world)
 
     def exchange(
         self, t_ns: int, tick: int, frames: Sequence[SensorFrame], elsewhere: Mapping[int, Vec3] | None = None
