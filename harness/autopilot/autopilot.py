@@ -32,6 +32,8 @@ from harness.autopilot.api import (
     StatusText,
     TickStatus,
 )
+from harness.autopilot.camera import CameraDevice
+from harness.autopilot.events import VehicleEvent
 from harness.autopilot.failures import FailureInjector
 from harness.autopilot.flight import FlightCore
 from harness.autopilot.flightlog import FlightLog, FlightLogFiles
@@ -48,7 +50,6 @@ from harness.autopilot.telemetry import TelemetryBell, TelemetryFeed
 from harness.core.clock import WALL, Clock
 from harness.core.errors import ScenarioError
 from harness.core.geo import GeoRef
-from harness.fdm.environment import WorldChange
 from harness.fdm.frame import SensorFrame
 
 _MODE_NUMBERS: dict[FlightMode, tuple[int, int]] = {m: (int(m.value[0]), int(m.value[1])) for m in FlightMode}
@@ -104,6 +105,7 @@ class Autopilot:
         self.gripper = Grippers(self)
         self.gimbal = GimbalDevice(self)
         self.world = SimWorld(self.params, lambda: self.core.battery)
+        self.camera = CameraDevice(self.lock)
         self.telemetry = TelemetryFeed(self, self.failure, self.gripper)
         self.bell = TelemetryBell()
         self.log_files = FlightLogFiles(self)
@@ -130,6 +132,13 @@ class Autopilot:
             gimbal = self.gimbal
             if gimbal.used:
                 gimbal.step(c.t_ns, c.est)
+            nav = c.nav
+            if nav.camera_items:  # the mission's camera items, re-issued to the camera as PX4 does
+                for it in nav.take_camera_items():
+                    self.camera.mission_item(it, c.t_ns)
+            if self.camera.active:
+                self.camera.home_alt_m = self.home.alt_amsl_m if self.home is not None else 0.0
+                self.camera.step(c.t_ns, frame.truth, c.landed_state != LandedState.ON_GROUND)
             if self.flight_log is not None:
                 self.flight_log.record(self)
             if c.t_ns >= self._next_super_ns:
@@ -156,9 +165,19 @@ class Autopilot:
             ring()
         return motors
 
-    def take_world_change(self) -> WorldChange | None:
-        """The SIM_* change for the physics since the last call (applied before the physics step after this tick)."""
-        return self.world.take_change(self.core.t_ns) if self.world.pending else None
+    def take_events(self) -> list[VehicleEvent]:
+        """What happened for the physics and the recordings since the last call (``harness.autopilot.events``):
+        a SIM_* change (applied before the physics step after this tick), the camera's pictures."""
+        out: list[VehicleEvent] = []
+        if self.world.pending:
+            change = self.world.take_change(self.core.t_ns)
+            if change is not None:
+                out.append(change)
+        cam = self.camera
+        if cam.recorded:
+            out += cam.recorded
+            cam.recorded = []
+        return out
 
     def tick_status(self) -> TickStatus:
         """Armed, landed state, PX4 mode and the gimbal's attitude (None while unused), for END-TICK-AC

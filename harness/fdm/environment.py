@@ -127,10 +127,10 @@ class Turbulence:
         return w[0] + g0, w[1] + g1, w[2] + g2
 
 
-class WorldChange(msgspec.Struct, array_like=True, frozen=True):
+class WorldChange(msgspec.Struct, array_like=True, frozen=True, tag="world"):
     """A change of one vehicle's simulated world asked for from its autopilot (ArduPilot's ``SIM_*``
     parameters; ``harness.autopilot.simworld``), applied by whoever steps its physics before the physics step
-    that follows the tick ``t_ns`` (END-TICK-AC ``world``), and recorded. None: unchanged."""
+    that follows the tick ``t_ns`` (END-TICK-AC ``events``), and recorded. None: unchanged."""
 
     t_ns: int
     wind_ned_m_s: tuple[float, float, float] | None = None
@@ -149,16 +149,3 @@ class WorldChange(msgspec.Struct, array_like=True, frozen=True):
             turbulence=self.turbulence if self.turbulence is not None else before.turbulence,
             turbulence_length_m=before.turbulence_length_m,
         )
-
-
-_WORLD_ENCODER = msgspec.msgpack.Encoder()
-_WORLD_DECODER = msgspec.msgpack.Decoder(list[WorldChange])
-
-
-def encode_changes(changes: list[WorldChange]) -> bytes:
-    """World changes for END-TICK-AC's ``world`` (``b""``: none)."""
-    return _WORLD_ENCODER.encode(changes) if changes else b""
-
-
-def decode_changes(data: bytes) -> list[WorldChange]:
-    return _WORLD_DECODER.decode(data) if data else []

@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
+from harness.autopilot.camera import Capture
+from harness.autopilot.events import decode_events
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.channel import Channel, ChannelConfig
@@ -38,7 +40,6 @@ from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import RecordingError, first_per_file, lost_message, writable_dir
-from harness.fdm.environment import decode_changes
 from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
 from harness.fdm.sensors import SensorConfig
 from harness.net.process_config import NetworkProcessConfig
@@ -531,8 +532,8 @@ class Launcher:
                 else:
                     motors[e.vehicle] = row.motors[e.vehicle] = e.motors
                     row.status[e.vehicle] = e.status
-                if e.world:  # SIM_* from the vehicle's autopilot: before the next physics step
-                    pacer = self._world_changed(e.vehicle, e.world, phys, world, pacer)
+                if e.events:  # SIM_* changes (before the next physics step), pictures
+                    pacer = self._vehicle_events(e.vehicle, e.events, phys, world, pacer)
             done = list(ledger.complete())
             if done:
                 self.record_rows(done, record_every, summaries, world)
@@ -548,20 +549,21 @@ class Launcher:
                 last_progress = self.clock.now_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
 
-    def _world_changed(
+    def _vehicle_events(
         self, vehicle: int, data: bytes, phys: Physics, world: WorldSink, pacer: Pacer | None
     ) -> Pacer | None:
-        """Apply and record the changes of ``vehicle``'s simulated world (a host's vehicle: applied there); a new
-        ``SIM_SPEEDUP`` paces the run from now on (0: as fast as possible). Returns the pacer."""
-        for change in decode_changes(data):
-            phys.apply(vehicle, change)
-            world.event(change.t_ns, WorldEvent.SIM, {"vehicle": vehicle, **msgspec.structs.asdict(change)})
-            if change.speedup is not None:
+        """A vehicle's events: changes of its simulated world applied (a host's vehicle: applied there) and
+        recorded, a new ``SIM_SPEEDUP`` pacing the run from now on (0: as fast as possible); its pictures recorded.
+        Returns the pacer."""
+        for event in decode_events(data):
+            if isinstance(event, Capture):
+                world.capture(vehicle, event)
+                continue
+            phys.apply(vehicle, event)
+            world.event(event.t_ns, WorldEvent.SIM, {"vehicle": vehicle, **msgspec.structs.asdict(event)})
+            if event.speedup is not None:
                 now = self.clock.now_ns()
-                if change.speedup > 0:
-                    pacer = Pacer(change.speedup, now - int(change.t_ns / change.speedup))
-                else:
-                    pacer = None
+                pacer = Pacer(event.speedup, now - int(event.t_ns / event.speedup)) if event.speedup > 0 else None
         return pacer
 
     @staticmethod

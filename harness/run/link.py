@@ -11,9 +11,9 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol
 
 from harness.autopilot.api import TickStatus
+from harness.autopilot.events import VehicleEvent, encode_events
 from harness.channel import Channel
 from harness.core.geo import Vec3
-from harness.fdm.environment import WorldChange, encode_changes
 from harness.fdm.frame import SensorFrame, encode_frame
 from harness.wire import protocol as p
 
@@ -23,7 +23,7 @@ class LocalFlightStack(Protocol):
 
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]: ...
     def tick_status(self) -> TickStatus: ...
-    def take_world_change(self) -> WorldChange | None: ...
+    def take_events(self) -> list[VehicleEvent]: ...
 
 
 class NativeLink:
@@ -55,13 +55,12 @@ class NativeLink:
         stack = self._local[v]
         motors = stack.step(self._frames[v])
         status = p.pack_status(*stack.tick_status())
-        change = stack.take_world_change()
-        world = b"" if change is None else encode_changes([change])
+        events = encode_events(stack.take_events())
         sent = self._sent.get(v)
         if sent is None or m.tick % self._phase_every:
-            return p.EndTickAC(m.t_ns, v, motors, status, world=world)
+            return p.EndTickAC(m.t_ns, v, motors, status, events=events)
         # after the step: what its bell sent in this tick counts
-        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if sent() else 0, world)
+        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if sent() else 0, events)
 
     def exchange(
         self, t_ns: int, tick: int, frames: Sequence[SensorFrame], elsewhere: Mapping[int, Vec3] | None = None

@@ -26,6 +26,7 @@ from harness.autopilot.api import (
     StatusText,
     VehicleState,
 )
+from harness.autopilot.camera import CameraDevice
 from harness.autopilot.mavlink.ardupilot.params import CopterParams
 from harness.autopilot.services import (
     Action,
@@ -153,5 +154,6 @@ class CopterSystem:
         self.follow_me: FollowMe | None = core.follow_me
         self.gripper: Gripper | None = core.gripper
         self.gimbal: Gimbal | None = None
+        self.camera: CameraDevice | None = None  # ArduPilot SITL's camera is not presented (PX4's is)
         self.log_files: LogFiles | None = core.log_files
         self.bell: Bell | None = core.bell
