@@ -89,3 +89,42 @@ def test_px4_home_and_speed_factor_move_and_pace_a_px4_vehicle(tmp_path: Path) -
     rtf = pacing["sim_s"] / (pacing["wall_s"] - pacing["behind_s"])
     print(f"FIGURE PX4_SIM_SPEED_FACTOR=5: speed {pacing['speed']}, x{rtf:.2f} (wall {pacing['wall_s']:.2f} s)")
     assert pacing["speed"] == 5.0 and 4.75 < rtf < 5.25
+
+
+SPEEDUP_SCRIPT = """
+import time
+from pymavlink import mavutil
+m = mavutil.mavlink_connection("tcp:127.0.0.1:5760", source_system=255)
+m.wait_heartbeat(timeout=30)
+def param(name, value=None):
+    if value is None:
+        m.mav.param_request_read_send(m.target_system, m.target_component, name.encode(), -1)
+    else:
+        m.mav.param_set_send(m.target_system, m.target_component, name.encode(), value, 9)
+    while True:
+        msg = m.recv_match(type="PARAM_VALUE", blocking=True, timeout=10)
+        if msg is not None and msg.param_id == name:
+            return msg.param_value
+print("SIM_SPEEDUP", param("SIM_SPEEDUP"), flush=True)
+print("SIM_SPEEDUP", param("SIM_SPEEDUP", 10), flush=True)
+time.sleep(30)
+"""
+
+
+def test_sim_speedup_is_the_runs_pace(tmp_path: Path) -> None:
+    script = tmp_path / "speedup.py"
+    script.write_text(SPEEDUP_SCRIPT)
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "harness.cli", "run", "--firmware", "ardupilot", "--speed", "1", "--mission",
+         str(script), "--duration", "40", "--out", str(out), "--no-progress"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    run = RunRecord(out, proc.returncode, proc.stdout, proc.stderr)
+    assert run.ok, run.message
+    assert run.mission_output(0).split() == ["SIM_SPEEDUP", "1.0", "SIM_SPEEDUP", "10.0"]  # --speed 1, then 10
+    ev = [e for e in run.topics["/sim/events"] if e["kind"] == "sim"]
+    assert len(ev) == 1 and ev[0]["detail"]["speedup"] == 10.0
+    pacing = run.summary["pacing"]
+    print(f"FIGURE SIM_SPEEDUP 10 at {ev[0]['t_s']:.1f} s of a --speed 1 run: {pacing}")
+    assert pacing["speed"] == 10.0 and pacing["wall_s"] < 0.5 * pacing["sim_s"]  # at x1 it would be >= 40 s
