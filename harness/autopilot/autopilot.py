@@ -52,6 +52,8 @@ from harness.core.errors import ScenarioError
 from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
 
+_NO_EVENTS: list[VehicleEvent] = []
+"""``take_events``'s answer when nothing happened (never changed: callers only read it)."""
 _MODE_NUMBERS: dict[FlightMode, tuple[int, int]] = {m: (int(m.value[0]), int(m.value[1])) for m in FlightMode}
 """PX4 (main, sub) mode numbers of each flight mode, for END-TICK-AC (``FlightMode.value`` is an enum
 property: computed once here instead of twice per tick)."""
@@ -168,6 +170,8 @@ class Autopilot:
     def take_events(self) -> list[VehicleEvent]:
         """What happened for the physics and the recordings since the last call (``harness.autopilot.events``):
         a SIM_* change (applied before the physics step after this tick), the camera's pictures."""
+        if not (self.world.pending or self.camera.recorded):
+            return _NO_EVENTS  # (every tick but a few: nothing made)
         out: list[VehicleEvent] = []
         if self.world.pending:
             change = self.world.take_change(self.core.t_ns)

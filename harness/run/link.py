@@ -55,7 +55,8 @@ class NativeLink:
         stack = self._local[v]
         motors = stack.step(self._frames[v])
         status = p.pack_status(*stack.tick_status())
-        events = encode_events(stack.take_events())
+        taken = stack.take_events()
+        events = encode_events(taken) if taken else b""
         sent = self._sent.get(v)
         if sent is None or m.tick % self._phase_every:
             return p.EndTickAC(m.t_ns, v, motors, status, events=events)
