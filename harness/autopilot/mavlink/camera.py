@@ -2,6 +2,11 @@
 (``MAV_COMP_ID_CAMERA``, 100, HEARTBEAT type ``MAV_TYPE_CAMERA``) of the vehicle's system, speaking the MAVLink
 camera protocol v2 for the autopilot's ``camera`` device (``harness.autopilot.camera``).
 
+Its HEARTBEAT goes out from the first time a client looks for cameras (asks the autopilot for CAMERA_INFORMATION,
+as MAVSDK's camera plugin and ground stations do, or addresses the camera): *unlike* a PX4 SITL model with a
+camera, which always sends it. pymavlink keeps one HEARTBEAT per system, so a script that never looks for a camera
+would otherwise read the camera's (``set_mode`` takes its autopilot type for the vehicle's).
+
 - On request (MAV_CMD_REQUEST_MESSAGE, or the older REQUEST_CAMERA_INFORMATION 521 / _SETTINGS 522 /
   STORAGE_INFORMATION 525 / CAMERA_CAPTURE_STATUS 527): CAMERA_INFORMATION (photo and video capture, modes,
   survey mode; no definition file, no video stream), CAMERA_SETTINGS (the mode), STORAGE_INFORMATION (one
@@ -62,12 +67,25 @@ class CameraComponent(Service):
         self.state = state
         self.cam_mav: mavlink2.MAVLink | None = None
         """The camera component's encoder (messages built with it are framed by the server as component 100)."""
+        self.announced = False
+        """Whether the component sends its HEARTBEAT: from the first time a client looks for cameras."""
+
+    def looked_for(self, m: MAVLinkMessage) -> None:
+        """A command to the autopilot: asking it for CAMERA_INFORMATION is how a client looks for cameras (MAVSDK's
+        camera plugin asks every component that heartbeats, the autopilot first): the camera answers from then on."""
+        cmd = m.command
+        if cmd == _M.MAV_CMD_REQUEST_CAMERA_INFORMATION or (
+            cmd == _M.MAV_CMD_REQUEST_MESSAGE and m.param1 == _M.MAVLINK_MSG_ID_CAMERA_INFORMATION
+        ):
+            self.announced = True
 
     def bind_component(self, mav: mavlink2.MAVLink) -> None:
         self.cam_mav = mav
 
     # ------------------------------------------------------------------ identity
     def heartbeat(self) -> MAVLinkMessage | None:
+        if not self.announced:
+            return None
         assert self.cam_mav is not None
         return self.cam_mav.heartbeat_encode(_M.MAV_TYPE_CAMERA, _M.MAV_AUTOPILOT_INVALID, 0, 0, _M.MAV_STATE_ACTIVE, 3)
 
@@ -127,6 +145,7 @@ class CameraComponent(Service):
         if m.get_msgId() not in _COMMANDS:
             return []
         assert self.cam_mav is not None
+        self.announced = True
         c = CommandIn.from_message(m)
         result, followups = self._command(c)
         ack = self.cam_mav.command_ack_encode(c.command, int(result.result), 0, 0, origin.sysid, origin.compid)

@@ -72,6 +72,8 @@ class Px4Services:
         if mid in _COMMAND_IDS:
             if m.command == CMD_CONFIGURE and self.gimbal is not None:  # who takes gimbal control: the sender
                 self.gimbal.sender = (origin.sysid, origin.compid)
+            if self.camera is not None:
+                self.camera.looked_for(m)
             return None
         service = self._by_message.get(mid)
         return None if service is None else service.handle(m, origin, now)
