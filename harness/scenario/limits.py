@@ -115,6 +115,8 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
     the name the user gave it (``{"tick_hz": "rates.tick_hz"}``), ``prefix`` names the file."""
     c = _Checker(prefix, names or {})
     n = plan.vehicles
+    if any("SIM_SPEEDUP" in p for p in plan.params):  # one pace for the run: ``speed`` (SIM_SPEEDUP shows it)
+        raise c.fail("params", "SIM_SPEEDUP is the run's pace: give it as speed (or --speed); it reads it")
     why = vehicle_count_error(n)
     if why is not None:
         raise c.fail("vehicles", why)

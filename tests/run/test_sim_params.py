@@ -128,3 +128,28 @@ def test_sim_speedup_is_the_runs_pace(tmp_path: Path) -> None:
     pacing = run.summary["pacing"]
     print(f"FIGURE SIM_SPEEDUP 10 at {ev[0]['t_s']:.1f} s of a --speed 1 run: {pacing}")
     assert pacing["speed"] == 10.0 and pacing["wall_s"] < 0.5 * pacing["sim_s"]  # at x1 it would be >= 40 s
+
+
+def test_sim_wind_from_a_scenario_acts_from_the_start(tmp_path: Path) -> None:
+    """A PX4 vehicle with ``params = { SIM_WIND_SPD = 8, SIM_WIND_DIR = 0 }``: the wind blows from the first tick
+    (recorded at t = 0) and the hover leans north, into it."""
+    hover = Path(__file__).resolve().parents[2] / "missions" / "hover.py"
+    (tmp_path / "s.toml").write_text(
+        f'[[vehicles]]\nmission = "{hover}"\nargs = ["15"]\nparams = {{ SIM_WIND_SPD = 8, SIM_WIND_DIR = 0 }}\n'
+    )
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "harness.cli", "run", str(tmp_path / "s.toml"), "--out", str(out), "--no-progress"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    run = RunRecord(out, proc.returncode, proc.stdout, proc.stderr)
+    assert run.ok, run.message
+    ev = [e for e in run.topics["/sim/events"] if e["kind"] == "sim"]
+    assert len(ev) == 1 and ev[0]["t_s"] == 0.0 and ev[0]["detail"]["wind_ned_m_s"][0] == pytest.approx(-8.0)
+    v = run.vehicle(0)
+    aloft = [thrust_direction(p["pose"]["orientation"]) for s, p in zip(v.track, v.poses, strict=True)
+             if -s["pos_ned_m"][2] > 5.0]  # fmt: skip
+    tail = aloft[len(aloft) // 3 : 2 * len(aloft) // 3]
+    tilt, az = sum(t for t, _ in tail) / len(tail), sum(a for _, a in tail) / len(tail)
+    print(f"FIGURE scenario SIM_WIND_SPD 8 from north: lean {tilt:.2f} deg toward azimuth {az:.1f}")
+    assert tilt >= 2.0 and abs(az) < 10.0

@@ -94,3 +94,12 @@ def test_cmac_spacing_matches_sim_vehicle_offsets() -> None:
     assert plan.spawn_ned_m is not None
     for i, (n, e, d) in enumerate(plan.spawn_ned_m):
         assert math.isclose(e, 10.0 * i) and abs(n) < 1e-9 and d == 0.0
+
+
+def test_sim_parameters_in_a_scenario(tmp_path: Path) -> None:
+    """SIM_* are vehicle parameters a scenario may set (they act from the first tick); the pace is ``speed``."""
+    (tmp_path / "m.toml").write_text('[vehicles]\ncount = 1\nfirmware = "ardupilot"\nparams = { SIM_WIND_SPD = 5 }\n')
+    assert load_scenario(tmp_path / "m.toml").params[0] == {"SIM_WIND_SPD": 5.0}
+    (tmp_path / "s.toml").write_text("[vehicles]\ncount = 1\nparams = { SIM_SPEEDUP = 5 }\n")
+    with pytest.raises(ScenarioError, match="SIM_SPEEDUP is the run's pace: give it as speed"):
+        load_scenario(tmp_path / "s.toml")
