@@ -68,7 +68,9 @@ def main() -> None:
             print(f"MODE LAND at {boot_s():.2f}", flush=True)
             break
     while m.motors_armed() and time.monotonic() < deadline + 60:
-        m.recv_match(type="HEARTBEAT", blocking=True, timeout=1)
+        msg = m.recv_match(type=["HEARTBEAT", "STATUSTEXT"], blocking=True, timeout=1)
+        if msg is not None and msg.get_type() == "STATUSTEXT":
+            print(f"TEXT {msg.text}", flush=True)
     print(f"DISARMED {not m.motors_armed()}", flush=True)
 
 

@@ -65,7 +65,7 @@ def test_sim_wind_leans_the_copter_and_sim_gps_disable_lands_it(harness_run) -> 
     )
     assert tilt_before < 1.5 and tilt >= 2.0 and -100.0 < azimuth < -80.0  # into the wind: west
     # SIM_GPS_DISABLE 1: no GPS (fix type 0), the position estimate lost, ArduCopter's EKF failsafe lands
-    assert "GPS fix_type 0" in out and "MODE LAND" in out and "DISARMED True" in out, out
+    assert "GPS fix_type 0" in out and "TEXT EKF variance" in out and "MODE LAND" in out and "DISARMED True" in out, out
     assert v.landed and not v.crashed
 
 
