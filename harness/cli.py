@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import os
 import signal
 import sys
@@ -83,7 +84,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             sets=_assignments(getattr(a, "set", None) or []),
             out=Path(a.out) if a.out else None,
             seed=a.seed,
-            speed=a.speed,
+            speed=_speed(a),
             duration_s=a.duration,
             network=a.network,
             signing_key_file=a.signing_key_file,
@@ -109,7 +110,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             missions=tuple(missions),
             swarm_mission=swarm_mission,
             seed=a.seed or 0,
-            speed=a.speed,
+            speed=_speed(a),
             duration_s=a.duration,
             network=NetworkKind(a.network or "none"),
             progress=None if getattr(a, "no_progress", False) else progress_printer(),
@@ -120,6 +121,24 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             **tree_options(a),
         )
     )
+
+
+_SPEED_NOT_GIVEN = math.nan
+"""``--speed``'s default: not given (``--speed max`` is None)."""
+
+
+def _speed(a: argparse.Namespace) -> float | None:
+    """``--speed``; else PX4 SITL's ``PX4_SIM_SPEED_FACTOR``; else real time for ``harness sitl``, as fast as
+    possible (or the scenario's ``speed``) otherwise."""
+    from harness.scenario.sitl_defaults import sitl_speed
+
+    given = getattr(a, "speed", _SPEED_NOT_GIVEN)
+    if given is not _SPEED_NOT_GIVEN:
+        return given
+    env = sitl_speed(os.environ)
+    if env is not None:
+        return env
+    return 1.0 if a.command == "sitl" else None
 
 
 _CLI_NAMES = {
@@ -383,7 +402,12 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         metavar="PATH",
         help="one script that commands every vehicle (it reads their addresses from $HARNESS_VEHICLES)",
     )
-    r.add_argument("--speed", type=ct.speed, default=None, help="'max' (default) or a real-time factor")
+    r.add_argument(
+        "--speed",
+        type=ct.speed,
+        default=_SPEED_NOT_GIVEN,
+        help="'max' (default; $PX4_SIM_SPEED_FACTOR when set) or a real-time factor",
+    )
     r.add_argument("--duration", type=ct.duration, default=None, help="sim-time limit in seconds")
     r.add_argument("--network", choices=["builtin", "ns3", "none"], default=None)
     r.add_argument("--seed", type=ct.seed, default=None)
@@ -487,7 +511,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     st = sub.add_parser("sitl", help="vehicles at real time for QGroundControl and hand-run scripts")
     _add_run_options(st)
-    st.set_defaults(func=_cmd_sitl, speed=1.0)
+    st.set_defaults(func=_cmd_sitl)
 
     vw = sub.add_parser("view", help="open a run's 3D view (world.rrd) in Rerun's viewer")
     vw.add_argument("dir", help="run directory (or a .rrd file)")

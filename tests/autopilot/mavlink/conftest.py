@@ -67,11 +67,14 @@ class Gcs:
         return [m for m in (self.parser.parse_buffer(data) or []) if not isinstance(m, mavlink2.MAVLink_bad_data)]
 
     def recv(self, kind: str, timeout_s: float = 3.0, cond: Callable[[Msg], bool] | None = None) -> Msg:
-        """The next message of type ``kind`` (and ``cond``); earlier other messages are dropped."""
+        """The next message of type ``kind`` (and ``cond``); earlier other messages are dropped. A HEARTBEAT is the
+        autopilot's (component 1): a PX4 vehicle's camera (component 100) sends its own."""
         deadline = real_monotonic_ns() + int(timeout_s * 1e9)
         while real_monotonic_ns() < deadline:
             for m in self._read(deadline):
                 if m.get_type() == kind and (cond is None or cond(m)):
+                    if kind == "HEARTBEAT" and m.get_srcComponent() != 1:
+                        continue
                     return m
         raise AssertionError(f"no {kind} within {timeout_s} s")
 

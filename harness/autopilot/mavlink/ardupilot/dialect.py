@@ -66,7 +66,7 @@ from harness.autopilot.mavlink.ardupilot.streams import (
     rc_builders,
 )
 from harness.autopilot.mavlink.commands import FORCE_MAGIC, CommandIn, CommandOutcome
-from harness.autopilot.mavlink.dialect_api import DialectHost
+from harness.autopilot.mavlink.dialect_api import Component, DialectHost
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, is_set
 from harness.autopilot.mavlink.telemetry import SENSOR_GEOFENCE, Builder, sys_status
 from harness.autopilot.params import Params
@@ -113,6 +113,7 @@ class CopterDialect:
 
     mission_float_form = True
     param_bytewise = False
+    components: Mapping[int, Component] = {}
 
     def __init__(self, core: System, sysid: int) -> None:
         self._core = core

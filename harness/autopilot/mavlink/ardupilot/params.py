@@ -18,8 +18,9 @@ from dataclasses import dataclass
 
 from harness.autopilot.api import CommandResult
 from harness.autopilot.param_table import ParamTable, parse_param_table
-from harness.autopilot.params import ParamDef, Params, ParamType
+from harness.autopilot.params import FLOWN_DEFS, ParamDef, Params, ParamType
 from harness.autopilot.params_data import copter_text
+from harness.autopilot.simworld import NAMES as SIM_NAMES
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,8 @@ MAPPED: tuple[Mapped, ...] = (
     Mapped("ATC_RAT_RLL_P", "MC_ROLLRATE_P", 1.0),
     Mapped("ATC_RAT_PIT_P", "MC_PITCHRATE_P", 1.0),
     Mapped("ATC_RAT_YAW_P", "MC_YAWRATE_P", 1.0),
+    # ArduPilot SITL's simulated world: the core's own SIM_* under the same names (harness/autopilot/simworld.py)
+    *(Mapped(d.name, d.name, 1.0, d.type, d.unit) for d in FLOWN_DEFS if d.name in SIM_NAMES),
 )
 
 CORE_DEFAULTS: dict[str, float] = {
