@@ -23,7 +23,7 @@ import socket
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from harness.autopilot.firmware import Firmware
@@ -56,6 +56,8 @@ class JoinPlan:
     stall_timeout_s: float = 30.0
     connect_timeout_s: float = 60.0
     progress: Callable[[str], None] | None = None
+    physics: str | None = None
+    """The run's ``physics.json`` here: the autopilot host steps these vehicles' physics too (else the root does)."""
 
     @property
     def indices(self) -> range:
@@ -67,6 +69,8 @@ class JoinResult:
     exits: dict[int, int | None]
     """Exit code of each vehicle's mission here (None: it never reported one)."""
     message: str
+    timing: dict[str, float] = field(default_factory=dict)
+    """The child channel's ticks and the wall time they took (``ticks``, ``tick_wall_s``, ``ms_per_tick``)."""
 
     @property
     def exit_code(self) -> int:
@@ -109,6 +113,7 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
     plan.out.mkdir(parents=True, exist_ok=True)
     channel = _connect(plan, clock)
     message = ""
+    wall_s = 0.0
     last = plan.indices[-1]
     try:
         with allocate(last + 1, PX4_API_BASE) as ports, Children(plan.out, clock=clock) as sup:
@@ -128,7 +133,9 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
                     plan.progress(
                         f"joined {plan.parent} as {channel.config.name}: vehicles {plan.first_vehicle}-{last}"
                     )
+                started = clock.now_ns()
                 message = _supervise(channel, sup)
+                wall_s = (clock.now_ns() - started) / NS_PER_S
             except KeyboardInterrupt as exc:
                 message = stop_reason(exc)
             except SimulationError as exc:
@@ -138,7 +145,11 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
     finally:  # the ports or the supervisor failed before the block: the joined channel stops all the same
         channel.stop()
     exits = {e.vehicle: e.exit_code for e in channel.mission_exits}
-    return JoinResult({i: exits.get(i) for i, m in zip(plan.indices, plan.missions, strict=False) if m}, message)
+    ticks = channel.ticks_done
+    timing = {"ticks": ticks, "tick_wall_s": wall_s, "ms_per_tick": 1e3 * wall_s / ticks if ticks else 0.0}
+    return JoinResult(
+        {i: exits.get(i) for i, m in zip(plan.indices, plan.missions, strict=False) if m}, message, timing
+    )
 
 
 def _connect(plan: JoinPlan, clock: Clock) -> Channel:
@@ -190,6 +201,7 @@ def _autopilot_argv(plan: JoinPlan, address: str, api_base: int, gcs: int) -> li
         firmware=(plan.firmware,),
         tcp_port_base=api_base,
         tcp_sim_clients=True,
+        physics=plan.physics,
     )
     config_file = plan.out / "autopilot.json"
     config_file.write_bytes(config.to_json())

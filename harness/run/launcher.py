@@ -27,7 +27,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.process_config import AutopilotProcessConfig
@@ -64,6 +64,29 @@ PHYSICS_FILE = "physics.json"
 """The run's physics configuration in its directory, from which each autopilot host builds its share."""
 
 log = logging.getLogger(__name__)
+
+
+class Remote(Protocol):
+    """Where the remote vehicles of a run are placed by an engine (``harness run --cluster``,
+    :class:`harness.run.cluster.ClusterShares`) instead of ``harness join`` by hand."""
+
+    physics_on_workers: bool
+    """The shares step their vehicles' physics too (configured by the run's ``physics.json``); else the root."""
+
+    def start(self, address: str, physics: bytes) -> None:
+        """Place the shares: they join the root channel at ``address`` (the run's ``physics.json``: ``physics``)."""
+
+    def check(self) -> None:
+        """Raise :class:`SimulationError` naming the share when one failed (cheap: called every 0.2 s of sim)."""
+
+    def stop(self, run_dir: Path, hurry: bool) -> None:
+        """The run is over: collect what the shares recorded into ``run_dir``; nothing of them left running."""
+
+    def summary(self) -> dict[str, Any]:
+        """What ``summary.json`` says of the shares."""
+
+    def host_of(self, vehicle: int) -> str:
+        """Where ``vehicle`` ran ('' for the root)."""
 
 
 def _python() -> str:
@@ -110,10 +133,12 @@ class Launcher:
     """Runs one plan. ``run()`` returns the result; the summary is written in any case. ``clock``: the wall
     clock of pacing, progress, the MAVLink side and the run's date (the sim clock is the physics)."""
 
-    def __init__(self, plan: LaunchPlan, clock: Clock = WALL) -> None:
+    def __init__(self, plan: LaunchPlan, clock: Clock = WALL, remote: Remote | None = None) -> None:
+        """``remote``: the remote vehicles are placed by an engine (a Dask cluster), not joined by hand."""
         check_plan(plan)  # every setting within its bounds before anything starts (limits.py)
         self.plan = plan
         self.clock = clock
+        self.remote = remote
         writable_dir(plan.out)  # a read-only or full file system, a file in the way: one line, nothing started
         self.epoch_ns = clock.unix_ns() // NS_PER_S * NS_PER_S
         self.paused = threading.Event()
@@ -186,6 +211,8 @@ class Launcher:
         )
         # each autopilot host steps its vehicles' physics too (configured by this file); this process the rest
         in_hosts = frozenset(v for group in self._autopilot_groups() for v in group)
+        if self.remote is not None and self.remote.physics_on_workers:
+            in_hosts |= frozenset(range(plan.vehicles, n))
         if in_hosts:
             try:
                 (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
@@ -215,8 +242,13 @@ class Launcher:
         world = open_world(plan.out, self.epoch_ns, n, plan.origin, serve_port=plan.view_port)
         stack.callback(world.close)
         local = stack.enter_context(contextlib.ExitStack())
+        remote, opened = self.remote, list[_Run]()
+        if remote is not None:  # after the channel's close: the shares end with the run, then their files come
+            stack.callback(lambda: remote.stop(plan.out, not opened or opened[0].status is not RunStatus.OK))
         stack.callback(channel.close, "end of run")
         channel.attach_physics()
+        if remote is not None:
+            remote.start(channel.address, physics_cfg.to_json())
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         extra, clock = self._summary_extra, self.clock
         checkpoint = Checkpoint(  # summary.json while the run runs; ``run`` is bound below, before the first write
@@ -231,6 +263,7 @@ class Launcher:
             clock=clock,
         )
         run = _Run(channel, world, sup, local, checkpoint, physics_cfg, in_hosts, summaries, settled, wall0)
+        opened.append(run)
         checkpoint.write()
         return run
 
@@ -256,7 +289,8 @@ class Launcher:
                 f"only {len(channel.subscribers())} of {expected} processes joined the channel within {start_s:g} s "
                 f"(see the *.stderr files in {plan.out})"
             )
-        tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
+        check = self.remote.check if self.remote is not None else None
+        tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress, check)
 
     def _tell_ports(self, world: WorldTee) -> None:
         """The progress lines of the MAVLink ports (and the live view's address) before anything starts."""
@@ -306,6 +340,9 @@ class Launcher:
                         if e is None
                         else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
+        if self.remote is not None:
+            for s in summaries:
+                s.host = self.remote.host_of(s.id) or None
         faults = [f.__dict__ for f in channel.faults if f.peer not in run.settled]
         if any(s.crashed for s in summaries) and status == RunStatus.OK:
             status, message = RunStatus.FAILED, "a vehicle crashed"
@@ -323,14 +360,18 @@ class Launcher:
 
     def _summary_extra(self) -> dict[str, Any]:
         plan = self.plan
-        return {
-            "seed": plan.seed,
-            "api_port_base": self.api_port_base,
-            "gcs_port": self.gcs_port,
-            "tick_hz": plan.tick_hz,
-            "physics_hz": plan.physics_hz,
-            "phase_every": plan.phase_every,
-        } | ({"pacing": self._pacing} if self._pacing is not None else {})
+        return (
+            {
+                "seed": plan.seed,
+                "api_port_base": self.api_port_base,
+                "gcs_port": self.gcs_port,
+                "tick_hz": plan.tick_hz,
+                "physics_hz": plan.physics_hz,
+                "phase_every": plan.phase_every,
+            }
+            | ({"pacing": self._pacing} if self._pacing is not None else {})
+            | (self.remote.summary() if self.remote is not None else {})
+        )
 
     def toggle_pause(self) -> None:
         """Pause or resume the clock (``harness run`` does this on SIGUSR1)."""
@@ -535,6 +576,8 @@ class Launcher:
                 for name, code in sup.poll_exits():
                     if name.startswith("autopilot") or name == "network":
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
+                if self.remote is not None:
+                    self.remote.check()
             checkpoint.maybe()
             if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
                 last_progress = self.clock.now_ns()
