@@ -166,8 +166,14 @@ class Root:
 
 
 def _tracks(run: Path) -> dict[str, list[object]]:
+    """Every vehicle's recorded samples (state, pose, fix), without the wall-clock date of the run's start
+    that the pose and fix messages carry (their sim time is in the state's ``t_s``)."""
     topics = read_topics(run / "world.mcap")
-    return {t: v for t, v in topics.items() if t.startswith("/vehicle/")}
+    return {
+        t: [{k: v for k, v in m.items() if k != "timestamp"} for m in msgs]
+        for t, msgs in topics.items()
+        if t.startswith("/vehicle/")
+    }
 
 
 def _leftovers() -> list[str]:
