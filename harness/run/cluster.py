@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from harness.core.endpoints import SYSIDS_PER_LINK
 from harness.core.errors import ScenarioError, SimulationError
 from harness.run.ports import PX4_API_BASE
 from harness.run.share import ShareJob, fly_share
@@ -256,8 +257,11 @@ class ClusterShares:
         self.shares = split(self.vehicles, workers, mission_share)
         if self.progress is not None:
             for w, r in self.shares:
+                procs = max(w.nthreads, -(-len(r) // SYSIDS_PER_LINK))
                 self.progress(
-                    f"cluster: worker {w.address} ({w.host}, {w.nthreads} cores): vehicles {r.start}-{r.stop - 1}"
+                    f"cluster: worker {w.address} ({w.host}, {w.nthreads} cores): vehicles {r.start}-{r.stop - 1} "
+                    f"in {procs} autopilot process(es), each with a ground-station port of its own on that machine "
+                    "(summary.json: cluster.workers[].gcs_ports)"
                 )
 
     def workers(self) -> list[WorkerInfo]:
@@ -298,6 +302,7 @@ class ClusterShares:
                 firmware=self.firmware,
                 stop_event=f"harness-run-stop-{self.token}",
                 physics=physics if self.physics_on_workers else b"",
+                processes=w.nthreads,
             )
             self.futures.append(
                 self.client.submit(
@@ -371,6 +376,7 @@ class ClusterShares:
                     "ms_per_tick": res.get("ms_per_tick", 0.0),
                     "cpu_s": cpu,
                     "cpu_us_per_vehicle_tick": 1e6 * cpu / (sim_ticks * len(r)) if ticks else 0.0,
+                    "gcs_ports": res.get("gcs_ports", []),
                     "exit_code": res.get("exit_code"),
                     "message": res.get("message", "no result (the task did not finish)"),
                 }

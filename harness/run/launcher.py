@@ -34,6 +34,7 @@ from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.channel import Channel, ChannelConfig
 from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.core.endpoints import sysid
 from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import RecordingError, first_per_file, lost_message, writable_dir
 from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
@@ -466,7 +467,10 @@ class Launcher:
             if m is None:
                 continue
             menv = dict(
-                env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(i + 1), HARNESS_MAVLINK_PORT=str(self.api_port_base + i)
+                env,
+                HARNESS_VEHICLE=str(i),
+                HARNESS_SYSID=str(sysid(i)),
+                HARNESS_MAVLINK_PORT=str(self.api_port_base + i),
             )
             fw = plan.firmware_of(i)
             menv["HARNESS_FIRMWARE"] = fw.value

@@ -62,6 +62,8 @@ class ShareJob:
     """The Dask ``Event`` the root sets when the run stops."""
     physics: bytes = b""
     """The run's ``physics.json``: the share steps its vehicles' physics too (empty: the root does)."""
+    processes: int = 1
+    """Autopilot processes of the share (the worker's cores; more for over 244 vehicles)."""
 
 
 def fly_share(job: ShareJob) -> dict[str, Any]:
@@ -172,12 +174,14 @@ def _main() -> int:
         name=cfg["name"],
         firmware=Firmware.parse(cfg["firmware"], "firmware"),
         physics=str(out / "physics.json") if cfg.get("physics") else None,
+        processes=int(cfg.get("processes", 1)),
     )
     outcome: dict[str, Any]
     try:
         result = run_join(plan)
         outcome = {"message": result.message, "exits": {str(k): v for k, v in result.exits.items()}}
         outcome |= result.timing
+        outcome["gcs_ports"] = [{"port": g, "vehicles": [a, b]} for g, a, b in result.gcs_ports]
         code = result.exit_code
     except (ScenarioError, SimulationError) as exc:
         outcome, code = {"message": str(exc), "exits": {}}, 1
