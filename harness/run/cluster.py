@@ -241,7 +241,7 @@ class ClusterShares:
                 n_workers=self.local_workers,
                 threads_per_worker=max(1, cores // self.local_workers),
                 processes=True,
-                dashboard_address=None,
+                dashboard_address=":0",  # (None is 8787, and a warning on stderr when another cluster has it)
                 silence_logs=logging.CRITICAL,
             )
             self.client = Client(self.cluster)

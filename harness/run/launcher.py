@@ -19,11 +19,13 @@ import contextlib
 import gc
 import logging
 import os
+import resource
 import secrets
 import socket
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -146,6 +148,8 @@ class Launcher:
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
         self._pacing: dict[str, float] | None = None
+        self._root_cost: dict[str, float] | None = None
+        """What the tick loop cost this process (``summary.json``'s ``root``), once it ended normally."""
         """``--speed``'s account of a run that ended normally (``_pacing``)."""
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port or 0
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
@@ -371,6 +375,7 @@ class Launcher:
                 "phase_every": plan.phase_every,
             }
             | ({"pacing": self._pacing} if self._pacing is not None else {})
+            | ({"root": self._root_cost} if self._root_cost is not None else {})
             | (self.remote.summary() if self.remote is not None else {})
         )
 
@@ -528,10 +533,12 @@ class Launcher:
         elsewhere = {v: phys.cfg.spawn(v) for v in range(n) if v not in set(own)}
         """Vehicles whose physics runs in an autopilot host (asked at phase ticks), with their last position."""
         ledger = Ledger(n)
+        cpu0 = _RootCost.now(phys.tick)
         while True:
             t_ns = phys.t_ns
             tick = phys.tick
             if (end_ns is not None and t_ns >= end_ns) or tree.missions_done(channel, missions, plan.vehicles):
+                self._root_cost = cpu0.since(tick, n)
                 if pacer is not None:
                     self._pacing = _pacing(pacer, t_ns, wall0, self.clock.now_ns())
                 return
@@ -637,6 +644,44 @@ class Launcher:
             f"sim {t_ns / NS_PER_S:7.1f} s  x{rtf:5.1f} real time  armed {armed}/{len(summaries)}  "
             f"in air {in_air}  missions done {done}/{missions}"
         )
+
+
+@dataclass(frozen=True)
+class _RootCost:
+    """CPU time of the root at a tick: its main thread (the tick loop: channel, ledger, recordings, its own share
+    of physics and autopilots) and the whole process (the MAVLink hub's and the recorders' threads too)."""
+
+    tick: int
+    thread_s: float
+    process_s: float
+
+    @classmethod
+    def now(cls, tick: int) -> _RootCost:
+        return cls(tick, time.thread_time(), time.process_time())
+
+    def since(self, tick: int, vehicles: int) -> dict[str, float]:
+        """From this point to ``tick`` of a run of ``vehicles``: the loop's CPU per tick and per vehicle-tick,
+        and the process's resident memory now and at its peak (MB)."""
+        ticks = max(1, tick - self.tick)
+        thread, process = time.thread_time() - self.thread_s, time.process_time() - self.process_s
+        return {
+            "ticks": tick - self.tick,
+            "loop_cpu_s": thread,
+            "process_cpu_s": process,
+            "loop_cpu_us_per_tick": 1e6 * thread / ticks,
+            "loop_cpu_us_per_vehicle_tick": 1e6 * thread / ticks / max(1, vehicles),
+            "process_cpu_us_per_vehicle_tick": 1e6 * process / ticks / max(1, vehicles),
+            "rss_mb": _rss_mb(),
+            "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        }
+
+
+def _rss_mb() -> float:
+    """This process's resident memory now (MB; 0 where ``/proc`` is not)."""
+    try:
+        return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 def _root_address(plan: LaunchPlan) -> str:
