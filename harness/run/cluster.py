@@ -198,7 +198,9 @@ class ClusterShares:
         self.local_workers = workers
         self.scheduler = scheduler
         self.vehicles = vehicles
-        self.missions = list(missions) + [None] * (vehicles - len(missions))
+        self.mission_plans = list(missions) + [None] * (vehicles - len(missions))
+        self.missions = sum(m is not None for m in self.mission_plans)
+        """Mission processes over all the shares."""
         self.firmware = firmware
         self.progress = progress
         self.physics_on_workers = physics_on_workers
@@ -215,7 +217,7 @@ class ClusterShares:
         self.futures: list[Any] = []
         self.results: list[dict[str, Any]] = []
         self._stop: Any = None
-        self._bundle, self._rel = bundle(self.missions)
+        self._bundle, self._rel = bundle(self.mission_plans)
 
     # -- before the run -------------------------------------------------------------------------------------
 
@@ -247,7 +249,7 @@ class ClusterShares:
             self.client = Client(self.cluster)
         self._stop = Event(f"harness-run-stop-{self.token}", client=self.client)
         workers = self.workers()
-        mission_share = sum(m is not None for m in self.missions) / max(1, self.vehicles)
+        mission_share = self.missions / max(1, self.vehicles)
         held = sum(capacity(w, mission_share) for w in workers)
         if self.vehicles > held:
             raise ScenarioError(

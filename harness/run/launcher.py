@@ -75,6 +75,8 @@ class Remote(Protocol):
 
     physics_on_workers: bool
     """The shares step their vehicles' physics too (configured by the run's ``physics.json``); else the root."""
+    missions: int
+    """Mission processes of the shares (the progress line counts them)."""
 
     def start(self, address: str, physics: bytes) -> None:
         """Place the shares: they join the root channel at ``address`` (the run's ``physics.json``: ``physics``)."""
@@ -592,7 +594,8 @@ class Launcher:
             checkpoint.maybe()
             if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
                 last_progress = self.clock.now_ns()
-                plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
+                shown = missions + (self.remote.missions if self.remote is not None else 0)
+                plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, shown))
 
     @staticmethod
     def record_rows(rows: list[Row], record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:
