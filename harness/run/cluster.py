@@ -27,6 +27,7 @@ import math
 import os
 import re
 import secrets
+import signal
 import socket
 import tarfile
 import threading
@@ -224,7 +225,7 @@ class ClusterShares:
     def open(self) -> None:
         """Connect (or start the local cluster), measure the workers, split the vehicles; one line when the
         cluster cannot hold them."""
-        from distributed import Client, Event, LocalCluster
+        from distributed import Client, Event
 
         _quiet_dask()
         if self.scheduler is not None:
@@ -239,13 +240,13 @@ class ClusterShares:
         else:
             assert self.local_workers is not None
             cores = len(os.sched_getaffinity(0))
-            self.cluster = LocalCluster(
-                n_workers=self.local_workers,
-                threads_per_worker=max(1, cores // self.local_workers),
-                processes=True,
-                dashboard_address=":0",  # (None is 8787, and a warning on stderr when another cluster has it)
-                silence_logs=logging.CRITICAL,
-            )
+            # the worker processes start with Ctrl-C ignored (a terminal's Ctrl-C reaches the whole process
+            # group: they would die with a traceback each; the run stops them itself), restored here after
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            try:
+                self.cluster = self._local_cluster(cores)
+            finally:
+                signal.signal(signal.SIGINT, previous)
             self.client = Client(self.cluster)
         self._stop = Event(f"harness-run-stop-{self.token}", client=self.client)
         workers = self.workers()
@@ -265,6 +266,18 @@ class ClusterShares:
                     f"in {procs} autopilot process(es), each with a ground-station port of its own on that machine "
                     "(summary.json: cluster.workers[].gcs_ports)"
                 )
+
+    def _local_cluster(self, cores: int) -> Any:
+        from distributed import LocalCluster
+
+        assert self.local_workers is not None
+        return LocalCluster(
+            n_workers=self.local_workers,
+            threads_per_worker=max(1, cores // self.local_workers),
+            processes=True,
+            dashboard_address=":0",  # (None is 8787, and a warning on stderr when another cluster has it)
+            silence_logs=logging.CRITICAL,
+        )
 
     def workers(self) -> list[WorkerInfo]:
         """The cluster's workers, each with its cost per unit of work measured on it (:func:`probe`)."""
