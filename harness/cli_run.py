@@ -112,7 +112,6 @@ def cluster_plan(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, C
         plan.missions[: plan.vehicles],
         firmware.pop(),
         plan.progress,
-        phase_every=plan.phase_every,
     )
     root = dataclasses.replace(
         plan,

@@ -85,10 +85,6 @@ class WorkerInfo:
     unit_s: float = 1.0
     """Wall seconds of :func:`probe` on the worker (its cost per unit of work)."""
 
-    @property
-    def weight(self) -> float:
-        return self.nthreads / max(self.unit_s, 1e-6)
-
 
 def capacity(w: WorkerInfo, mission_share: float) -> int:
     """How many vehicles ``w`` holds: its memory (each vehicle, and a mission for the fraction
@@ -101,11 +97,15 @@ def capacity(w: WorkerInfo, mission_share: float) -> int:
 
 
 def split(vehicles: int, workers: Sequence[WorkerInfo], mission_share: float = 0.0) -> list[tuple[WorkerInfo, range]]:
-    """Vehicles 0…n-1 over ``workers`` in contiguous shares proportional to their weight (cores over measured
-    cost), largest remainders first, none over its capacity; workers left with no vehicle get no share."""
+    """Vehicles 0…n-1 over ``workers`` in contiguous shares proportional to their cores over their measured
+    cost, largest remainders first, none over its capacity; workers left with no vehicle get no share."""
     caps = [capacity(w, mission_share) for w in workers]
-    total = sum(w.weight for w in workers)
-    exact = [vehicles * w.weight / total for w in workers]
+    fastest = min(w.unit_s for w in workers)
+    # each worker's cost relative to the fastest, in steps of a half: a difference below a quarter is a shared
+    # machine's noise (two identical workers measured 1.2x apart under load), not a slower core
+    weights = [w.nthreads / max(1.0, round(2 * w.unit_s / fastest) / 2) for w in workers]
+    total = sum(weights)
+    exact = [vehicles * weight / total for weight in weights]
     sizes = [min(cap, math.floor(x)) for cap, x in zip(caps, exact, strict=True)]
     order = sorted(range(len(workers)), key=lambda k: exact[k] - math.floor(exact[k]), reverse=True)
     while sum(sizes) < vehicles:
@@ -194,7 +194,6 @@ class ClusterShares:
         firmware: str = "px4",
         progress: Callable[[str], None] | None = None,
         physics_on_workers: bool = True,
-        phase_every: int = 5,
     ) -> None:
         self.local_workers = workers
         self.scheduler = scheduler
@@ -206,7 +205,6 @@ class ClusterShares:
         self.progress = progress
         self.physics_on_workers = physics_on_workers
         """Each share steps its vehicles' physics (the root is asked only at phase ticks): what scales."""
-        self.phase_every = phase_every
         self.secret = secrets.token_hex(24)
         self.token = uuid.uuid4().hex[:12]
         self.host = own_address(scheduler)
@@ -369,15 +367,13 @@ class ClusterShares:
         if self.cluster is not None:
             _bounded(lambda: self.cluster.close(timeout=CLOSE_S), CLOSE_S)
 
-    def summary(self) -> dict[str, Any]:
-        """``summary.json``'s ``cluster``: each worker's share, tick timing and CPU time."""
+    def summary(self, ticks: int) -> dict[str, Any]:
+        """``summary.json``'s ``cluster``: each worker's share, its timing over the run's ``ticks`` and CPU time."""
         results = {r["name"]: r for r in self.results}
         workers = []
         for w, r in self.shares:
             res = results.get(self.share_name(w), {})
-            ticks = int(res.get("ticks", 0))  # the root's ticks this share answered: phase ticks only, when
-            sim_ticks = ticks * self.phase_every if self.physics_on_workers else ticks  # it steps its physics
-            cpu = float(res.get("cpu_s", 0.0))
+            cpu, wall = float(res.get("cpu_s", 0.0)), float(res.get("tick_wall_s", 0.0))
             workers.append(
                 {
                     "worker": w.address,
@@ -386,11 +382,11 @@ class ClusterShares:
                     "probe_s": w.unit_s,
                     "vehicles": [r.start, r.stop - 1],
                     "ticks": ticks,
-                    "tick_wall_s": res.get("tick_wall_s", 0.0),
-                    "max_rss_mb": res.get("max_rss_mb", 0.0),
-                    "ms_per_tick": res.get("ms_per_tick", 0.0),
+                    "tick_wall_s": wall,
+                    "ms_per_tick": 1e3 * wall / ticks if ticks else 0.0,
                     "cpu_s": cpu,
-                    "cpu_us_per_vehicle_tick": 1e6 * cpu / (sim_ticks * len(r)) if ticks else 0.0,
+                    "cpu_us_per_vehicle_tick": 1e6 * cpu / (ticks * len(r)) if ticks else 0.0,
+                    "max_rss_mb": res.get("max_rss_mb", 0.0),
                     "gcs_ports": res.get("gcs_ports", []),
                     "exit_code": res.get("exit_code"),
                     "message": res.get("message", "no result (the task did not finish)"),

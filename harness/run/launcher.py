@@ -87,8 +87,8 @@ class Remote(Protocol):
     def stop(self, run_dir: Path, hurry: bool) -> None:
         """The run is over: collect what the shares recorded into ``run_dir``; nothing of them left running."""
 
-    def summary(self) -> dict[str, Any]:
-        """What ``summary.json`` says of the shares."""
+    def summary(self, ticks: int) -> dict[str, Any]:
+        """What ``summary.json`` says of the shares, after ``ticks`` ticks of the run (0: not known yet)."""
 
     def host_of(self, vehicle: int) -> str:
         """Where ``vehicle`` ran ('' for the root)."""
@@ -378,7 +378,7 @@ class Launcher:
             }
             | ({"pacing": self._pacing} if self._pacing is not None else {})
             | ({"root": self._root_cost} if self._root_cost is not None else {})
-            | (self.remote.summary() if self.remote is not None else {})
+            | (self.remote.summary(int(self._root_cost["ticks"]) if self._root_cost else 0) if self.remote else {})
         )
 
     def toggle_pause(self) -> None:

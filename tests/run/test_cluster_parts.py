@@ -28,6 +28,12 @@ def test_split_follows_cores_over_measured_cost() -> None:
     assert [(w.host, r) for w, r in shares] == [("a", range(0, 400)), ("b", range(400, 600)), ("c", range(600, 700))]
 
 
+def test_a_shared_machines_noise_does_not_skew_the_split() -> None:
+    # two identical workers measured 1.2x apart under load: the same share each; 1.3x apart: 3 : 2
+    assert [len(r) for _, r in split(6, [_w("a"), _w("b", unit_s=1.2)])] == [3, 3]
+    assert [len(r) for _, r in split(10, [_w("a"), _w("b", unit_s=1.3)])] == [6, 4]
+
+
 def test_split_is_contiguous_and_gives_no_empty_share() -> None:
     shares = split(2, [_w("a"), _w("b"), _w("c")])
     assert [r for _, r in shares] == [range(0, 1), range(1, 2)]
