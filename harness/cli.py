@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 from harness import cli_types as ct
 from harness.cli_run import (
+    cluster_plan,
     cmd_channel,
     cmd_join,
     cmd_plot,
@@ -68,7 +69,7 @@ def _end_mission(code: int) -> NoReturn:
     exit_now(code)
 
 
-def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None) -> LaunchPlan:
+def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None, checked: bool = True) -> LaunchPlan:
     from harness.net.model import NetworkKind
     from harness.scenario.plan import LaunchPlan, MissionPlan
 
@@ -103,7 +104,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
         raise ScenarioError("--swarm-mission: say how many vehicles it commands with --vehicles N")
     if len(missions) == 1 and vehicles > 1:
         missions = missions * vehicles  # one script flies every vehicle
-    return _checked(
+    return (_checked if checked else _same)(
         LaunchPlan(
             vehicles=vehicles,
             out=Path(a.out) if a.out else Path("runs") / time.strftime("%Y%m%d-%H%M%S"),
@@ -154,6 +155,10 @@ _CLI_NAMES = {
     "remote_vehicles": "--remote-vehicles",
     "join_timeout_s": "--join-timeout",
 }
+
+
+def _same(plan: LaunchPlan) -> LaunchPlan:
+    return plan
 
 
 def _checked(plan: LaunchPlan) -> LaunchPlan:
@@ -237,6 +242,8 @@ def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
     from harness.run.launcher import Launcher
 
     terminate_as_interrupt()
+    if getattr(a, "cluster", None) or getattr(a, "scheduler", None):
+        return _cmd_run_on_cluster(a, rest)
     plan = _plan_from_args(a, rest)
     if getattr(a, "stdin", False):
         if sum(m is not None for m in plan.missions[: plan.vehicles]) + (plan.swarm_mission is not None) != 1:
@@ -250,6 +257,18 @@ def _cmd_run(a: argparse.Namespace, rest: list[str]) -> int:
     finally:
         for viewer in natives:
             viewer.stop()
+
+
+def _cmd_run_on_cluster(a: argparse.Namespace, rest: list[str]) -> int:
+    """``harness run --cluster local:K`` / ``--scheduler ADDRESS``: the vehicles on a Dask cluster's workers."""
+    from harness.run.launcher import Launcher
+
+    plan, shares = cluster_plan(a, _plan_from_args(a, rest, checked=False))
+    try:
+        shares.open()  # the workers measured and the vehicles split; one line when they cannot hold them
+        return _run_plan(a, plan, [], Launcher(plan, remote=shares))
+    finally:
+        shares.stop(plan.out, hurry=True)
 
 
 def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewer], launcher: Launcher) -> int:
@@ -491,6 +510,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--stdin",
         action="store_true",
         help="hand this terminal's stdin to the run's one mission and show its output here (prompt-driven scripts)",
+    )
+    r.add_argument(
+        "--cluster",
+        default=None,
+        metavar="local:K",
+        help="fly the vehicles (autopilots, missions) on a local Dask cluster of K worker processes",
+    )
+    r.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="tcp://HOST:8786",
+        help="fly the vehicles on the workers of this Dask cluster (this machine keeps the physics and recordings)",
     )
     r.set_defaults(func=_cmd_run)
 

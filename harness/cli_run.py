@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Any
 from harness.core.errors import ScenarioError, StopSignal
 
 if TYPE_CHECKING:
+    from harness.run.cluster import ClusterShares
+    from harness.scenario.plan import LaunchPlan
     from harness.sweep.runner import SweepProgress
 
 
@@ -78,6 +80,50 @@ def tree_options(a: argparse.Namespace) -> dict[str, Any]:
         "join_timeout_s": a.join_timeout,
         **workers,
     }
+
+
+def cluster_plan(a: argparse.Namespace, plan: LaunchPlan) -> tuple[LaunchPlan, ClusterShares]:
+    """``harness run --cluster local:K`` / ``--scheduler ADDRESS``: the root's plan (every vehicle remote, the
+    root channel on an address the workers reach, the run's own secret) and the shares' placement."""
+    import dataclasses
+
+    from harness.run.cluster import ClusterShares, check_scheduler, parse_cluster
+    from harness.scenario.limits import check_plan
+
+    if a.cluster and a.scheduler:
+        raise ScenarioError("give either --cluster local:K or --scheduler ADDRESS, not both")
+    for option, given in (
+        ("--workers", getattr(a, "workers", None)),
+        ("--remote-vehicles", getattr(a, "remote_vehicles", None)),
+        ("--accept", getattr(a, "accept", None)),
+        ("--stdin", getattr(a, "stdin", False)),
+        ("--swarm-mission", plan.swarm_mission),
+        ("per-vehicle parameters", any(plan.params)),
+    ):
+        if given:
+            raise ScenarioError(f"{option} cannot be used with --cluster/--scheduler (the workers fly every vehicle)")
+    firmware = {f.value for f in plan.firmware} or {"px4"}
+    if len(firmware) > 1:
+        raise ScenarioError("--cluster/--scheduler: every vehicle must have the same --firmware")
+    shares = ClusterShares(
+        parse_cluster(a.cluster) if a.cluster else None,
+        check_scheduler(a.scheduler) if a.scheduler else None,
+        plan.vehicles,
+        plan.missions[: plan.vehicles],
+        firmware.pop(),
+        plan.progress,
+    )
+    root = dataclasses.replace(
+        plan,
+        vehicles=0,
+        remote_vehicles=plan.vehicles,
+        missions=(),
+        listen=shares.listen,
+        secret=shares.secret.encode(),
+        firmware=(),
+    )
+    check_plan(root, "", {"remote_vehicles": "--vehicles", "duration_s": "--duration", "seed": "--seed"})
+    return root, shares
 
 
 def cmd_join(a: argparse.Namespace, rest: list[str]) -> int:

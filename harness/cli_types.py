@@ -12,7 +12,7 @@ import sys
 from collections.abc import Callable
 from typing import NoReturn
 
-from harness.scenario.limits import MAX_DURATION_S, MAX_VEHICLES, MAX_WAIT_S, lowest_port
+from harness.scenario.limits import MAX_DURATION_S, MAX_RUN_VEHICLES, MAX_WAIT_S, lowest_port
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -65,7 +65,8 @@ def speed(text: str) -> float | None:
         raise argparse.ArgumentTypeError(f"must be 'max' or a finite number > 0, got {text!r}") from None
 
 
-vehicles = integer(1, MAX_VEHICLES)
+vehicles = integer(1, MAX_RUN_VEHICLES)
+"""On one machine at most ``MAX_VEHICLES`` (``check_plan`` says so); a cluster run takes what its workers hold."""
 seed = integer(0, 2**63 - 1)
 duration = number(0.0, MAX_DURATION_S, lo_open=True)
 wait = number(0.0, MAX_WAIT_S, lo_open=True)

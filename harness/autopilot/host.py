@@ -266,15 +266,21 @@ def run_autopilots(
                 if handle is not None:
                     attached.append(handle)
         label = name or "autopilot-" + "-".join(str(v) for v in vehicles)
-        client = ChannelClient.connect(address, p.PeerKind.AUTOPILOT, label, vehicles=tuple(vehicles), secret=secret)
-        try:
-            if physics is None:
+        with contextlib.ExitStack() as conns:
+            # a host's clock joins before its vehicles do: once the channel holds them, a tick may start (the
+            # root of a tree waits only for the vehicles), and its BEGIN-TICK-1 must reach this clock
+            clock = None
+            if physics is not None:
+                clock = ChannelClient.connect(address, p.PeerKind.TYPE1, f"{label}:clock", secret=secret)
+                conns.enter_context(clock)
+            client = ChannelClient.connect(
+                address, p.PeerKind.AUTOPILOT, label, vehicles=tuple(vehicles), secret=secret
+            )
+            conns.callback(client.close, "autopilot host stopping")
+            if physics is None or clock is None:
                 serve(client, aps, stop)
             else:
-                with ChannelClient.connect(address, p.PeerKind.TYPE1, f"{label}:clock", secret=secret) as clock:
-                    serve_worker(client, clock, aps, physics, stop, mavlink_sent)
-        finally:
-            client.close("autopilot host stopping")
+                serve_worker(client, clock, aps, physics, stop, mavlink_sent)
     finally:
         for h in attached:
             with contextlib.suppress(Exception):

@@ -437,12 +437,17 @@ class TickMachine(Membership):
         )
 
     def _phase0_may_start(self) -> bool:
-        """Phase 0 starts once the previous phase 1 is over and after the autopilots have stepped this tick
-        (when some are in-process): what they send their missions over MAVLink at this tick is then in the missions' sockets
-        before phase 0 begins, so a script reads it in this phase whatever the machine's pace."""
+        """Phase 0 starts once the previous phase 1 is over and after the autopilots have stepped this tick:
+        what they send their missions over MAVLink at this tick is then in the missions' sockets before phase 0
+        begins, so a script reads it in this phase whatever the machine's pace. With no autopilot in-process
+        and no child channel, phase 0 overlaps the autopilots' step (the paper's order). A child channel's
+        missions are different: the child decides which of them take part from its vehicles' END-TICK-AC
+        ``mavlink``, so the root waits for every answer, which passes through the child on its way up, before
+        phase 0 (without that wait a MAVSDK mission on a cluster worker armed a phase later in one run of two:
+        its child had taken it into phase 0 before its vehicle's answer was in)."""
         if self.state.phase is not _PENDING or self.wait1:
             return False
-        if not self.in_process_peers:
+        if not self.in_process_peers and not any(True for _ in self.active(p.PeerKind.CHILD)):
             return True
         state = self.state.tick
         if state is _COLLECTING or state is _AWAITING:

@@ -20,6 +20,17 @@ PX4_API_BASE = 14580
 """PX4 SITL's own MAVLink port for offboard APIs (instance ``i`` listens on ``14580 + i``)."""
 GCS_PORT = 14550
 """The ground station's UDP port every vehicle sends to."""
+SYSIDS_PER_LINK = 244
+"""System ids 1-244 for vehicles (245 is MAVSDK's ground station, 255 QGroundControl's): a MAVLink link (one
+ground-station port) shows at most this many vehicles. A run with more (``harness run --cluster``) gives its
+vehicles ids modulo this, and no ground-station port sees more than this many consecutive vehicles."""
+
+
+def sysid(vehicle: int) -> int:
+    """Vehicle ``vehicle``'s MAVLink system id: ``vehicle + 1`` in a run of up to 244 vehicles, and unique
+    among any 244 consecutive vehicles beyond (ids need only be unique on a link, not in the run)."""
+    return vehicle % SYSIDS_PER_LINK + 1
+
 
 LISTEN_PORTS = frozenset({14540, 14550, 14551})
 """UDP ports a script listens on for its vehicle (``udpin:0.0.0.0:14540``, ``127.0.0.1:14550``)."""

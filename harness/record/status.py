@@ -17,6 +17,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.core.files import RecordingError
 
@@ -30,7 +32,9 @@ def write_json(path: Path, obj: dict[str, Any]) -> None:
     ``.tmp`` behind) when it cannot."""
     tmp = path.with_name(path.name + ".tmp")
     try:
-        tmp.write_text(json.dumps(obj, indent=2))
+        # msgspec's encoder, not json's: with an indent json encodes in Python (2.5 ms for 300 vehicles, every
+        # second while the run runs, against 0.18)
+        tmp.write_bytes(msgspec.json.format(msgspec.json.encode(obj), indent=2))
         os.replace(tmp, path)
     except OSError:
         tmp.unlink(missing_ok=True)
@@ -50,7 +54,7 @@ def write_final_json(path: Path, obj: dict[str, Any]) -> None:
         first = exc
     try:
         with path.open("r+b") as f:
-            f.write(json.dumps(obj, separators=(",", ":")).encode() + b"\n")
+            f.write(msgspec.json.encode(obj) + b"\n")
             f.truncate()
     except OSError:
         raise RecordingError.of(path, first) from None

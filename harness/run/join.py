@@ -17,19 +17,21 @@ every mission here exited 0.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import socket
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.channel import Channel, ChannelConfig
 from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.core.endpoints import SYSIDS_PER_LINK, sysid
 from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import script_file
 from harness.run import tree
@@ -56,6 +58,11 @@ class JoinPlan:
     stall_timeout_s: float = 30.0
     connect_timeout_s: float = 60.0
     progress: Callable[[str], None] | None = None
+    physics: str | None = None
+    """The run's ``physics.json`` here: the autopilot host steps these vehicles' physics too (else the root does)."""
+    processes: int = 1
+    """Autopilot processes here (the cores to use); more when one would show over 244 vehicles to its ground
+    station (:data:`SYSIDS_PER_LINK`)."""
 
     @property
     def indices(self) -> range:
@@ -67,6 +74,10 @@ class JoinResult:
     exits: dict[int, int | None]
     """Exit code of each vehicle's mission here (None: it never reported one)."""
     message: str
+    timing: dict[str, float] = field(default_factory=dict)
+    """The child channel's ticks and the wall time they took (``ticks``, ``tick_wall_s``, ``ms_per_tick``)."""
+    gcs_ports: list[tuple[int, int, int]] = field(default_factory=list)
+    """(ground-station udp port, first vehicle, last vehicle) of each autopilot process here."""
 
     @property
     def exit_code(self) -> int:
@@ -109,9 +120,15 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
     plan.out.mkdir(parents=True, exist_ok=True)
     channel = _connect(plan, clock)
     message = ""
+    wall_s = 0.0
+    shown: list[tuple[int, int, int]] = []
     last = plan.indices[-1]
     try:
-        with allocate(last + 1, PX4_API_BASE) as ports, Children(plan.out, clock=clock) as sup:
+        with contextlib.ExitStack() as stack:
+            ports = stack.enter_context(allocate(last + 1, PX4_API_BASE))
+            groups = autopilot_groups(plan)  # each process its own ground-station port, for at most 244 vehicles
+            gcs = [ports.gcs] + [stack.enter_context(allocate(0, PX4_API_BASE)).gcs for _ in groups[1:]]
+            sup = stack.enter_context(Children(plan.out, clock=clock))
             try:
                 env = tree.secret_env(
                     dict(os.environ, HARNESS_CHANNEL=channel.address, HARNESS_RUN_DIR=str(plan.out)), plan.secret
@@ -123,12 +140,18 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
                     f"only some of the {missions} missions started (see {plan.out}/*.stderr)",
                     clock,
                 )
-                sup.start("autopilot", _autopilot_argv(plan, channel.address, ports.api_base, ports.gcs), env=env)
+                for k, (group, port) in enumerate(zip(groups, gcs, strict=True)):
+                    name = f"autopilot-{k}" if k else "autopilot"
+                    sup.start(name, _autopilot_argv(plan, name, group, channel.address, ports.api_base, port), env=env)
+                    shown.append((port, group.start, group.stop - 1))
                 if plan.progress is not None:
                     plan.progress(
-                        f"joined {plan.parent} as {channel.config.name}: vehicles {plan.first_vehicle}-{last}"
+                        f"joined {plan.parent} as {channel.config.name}: vehicles {plan.first_vehicle}-{last}; "
+                        + ", ".join(f"ground-station udp port {g} shows vehicles {a}-{b}" for g, a, b in shown)
                     )
+                started = clock.now_ns()
                 message = _supervise(channel, sup)
+                wall_s = (clock.now_ns() - started) / NS_PER_S
             except KeyboardInterrupt as exc:
                 message = stop_reason(exc)
             except SimulationError as exc:
@@ -138,7 +161,11 @@ def run_join(plan: JoinPlan, clock: Clock = WALL) -> JoinResult:
     finally:  # the ports or the supervisor failed before the block: the joined channel stops all the same
         channel.stop()
     exits = {e.vehicle: e.exit_code for e in channel.mission_exits}
-    return JoinResult({i: exits.get(i) for i, m in zip(plan.indices, plan.missions, strict=False) if m}, message)
+    ticks = channel.ticks_done
+    timing = {"ticks": ticks, "tick_wall_s": wall_s, "ms_per_tick": 1e3 * wall_s / ticks if ticks else 0.0}
+    return JoinResult(
+        {i: exits.get(i) for i, m in zip(plan.indices, plan.missions, strict=False) if m}, message, timing, shown
+    )
 
 
 def _connect(plan: JoinPlan, clock: Clock) -> Channel:
@@ -169,7 +196,7 @@ def _start_missions(plan: JoinPlan, sup: Children, address: str, env: dict[str, 
         if m is None:
             continue
         fw = plan.firmware
-        menv = dict(env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(i + 1), HARNESS_MAVLINK_PORT=str(api_base + i))
+        menv = dict(env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(sysid(i)), HARNESS_MAVLINK_PORT=str(api_base + i))
         menv["HARNESS_FIRMWARE"] = fw.value
         if fw is Firmware.ARDUPILOT:
             menv["HARNESS_MAVLINK_TCP_PORT"] = str(api_base + i)
@@ -178,11 +205,22 @@ def _start_missions(plan: JoinPlan, sup: Children, address: str, env: dict[str, 
     return count
 
 
-def _autopilot_argv(plan: JoinPlan, address: str, api_base: int, gcs: int) -> list[str]:
-    """The autopilot process of this machine's vehicles, configured by ``<out>/autopilot.json``."""
+def autopilot_groups(plan: JoinPlan) -> list[range]:
+    """The vehicles of each autopilot process here: ``plan.processes`` contiguous shares, and as many more as it
+    takes for none to hold more than :data:`SYSIDS_PER_LINK` (system ids repeat beyond: a ground station on
+    one port must not see two vehicles with one id)."""
+    count = max(plan.processes, -(-plan.vehicles // SYSIDS_PER_LINK))
+    return [
+        range(plan.first_vehicle + g.start, plan.first_vehicle + g.stop)
+        for g in tree.worker_groups(plan.vehicles, count)
+    ]
+
+
+def _autopilot_argv(plan: JoinPlan, name: str, group: range, address: str, api_base: int, gcs: int) -> list[str]:
+    """An autopilot process of this machine's vehicles ``group``, configured by ``<out>/<name>.json``."""
     config = AutopilotProcessConfig(
         address=address,
-        vehicles=tuple(plan.indices),
+        vehicles=tuple(group),
         api_port_base=0,
         api_local_port_base=api_base,
         gcs_port=gcs,
@@ -190,8 +228,9 @@ def _autopilot_argv(plan: JoinPlan, address: str, api_base: int, gcs: int) -> li
         firmware=(plan.firmware,),
         tcp_port_base=api_base,
         tcp_sim_clients=True,
+        physics=plan.physics,
     )
-    config_file = plan.out / "autopilot.json"
+    config_file = plan.out / f"{name}.json"
     config_file.write_bytes(config.to_json())
     return [sys.executable, "-m", "harness.autopilot.sitl", "--config", str(config_file)]
 
@@ -208,6 +247,6 @@ def _supervise(channel: Channel, sup: Children) -> str:
     """Until the root ends the run: '' when it did, else why this machine's part failed."""
     while not channel.wait(0.2):
         for name, code in sup.poll_exits():
-            if name == "autopilot":
-                return f"the autopilot process exited with {code} (see autopilot.stderr)"
+            if name.startswith("autopilot"):
+                return f"the {name} process exited with {code} (see {name}.stderr)"
     return channel.failure or ""

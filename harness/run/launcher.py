@@ -19,15 +19,17 @@ import contextlib
 import gc
 import logging
 import os
+import resource
 import secrets
 import socket
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import msgspec
 
@@ -38,6 +40,7 @@ from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.channel import Channel, ChannelConfig
 from harness.core import jit
 from harness.core.clock import NS_PER_S, WALL, Clock
+from harness.core.endpoints import sysid
 from harness.core.errors import ScenarioError, SimulationError, stop_reason
 from harness.core.files import RecordingError, first_per_file, lost_message, writable_dir
 from harness.fdm.physics import Physics, PhysicsConfig, WindConfig, WorldOrigin
@@ -68,6 +71,31 @@ PHYSICS_FILE = "physics.json"
 """The run's physics configuration in its directory, from which each autopilot host builds its share."""
 
 log = logging.getLogger(__name__)
+
+
+class Remote(Protocol):
+    """Where the remote vehicles of a run are placed by an engine (``harness run --cluster``,
+    :class:`harness.run.cluster.ClusterShares`) instead of ``harness join`` by hand."""
+
+    physics_on_workers: bool
+    """The shares step their vehicles' physics too (configured by the run's ``physics.json``); else the root."""
+    missions: int
+    """Mission processes of the shares (the progress line counts them)."""
+
+    def start(self, address: str, physics: bytes) -> None:
+        """Place the shares: they join the root channel at ``address`` (the run's ``physics.json``: ``physics``)."""
+
+    def check(self) -> None:
+        """Raise :class:`SimulationError` naming the share when one failed (cheap: called every 0.2 s of sim)."""
+
+    def stop(self, run_dir: Path, hurry: bool) -> None:
+        """The run is over: collect what the shares recorded into ``run_dir``; nothing of them left running."""
+
+    def summary(self, ticks: int) -> dict[str, Any]:
+        """What ``summary.json`` says of the shares, after ``ticks`` ticks of the run (0: not known yet)."""
+
+    def host_of(self, vehicle: int) -> str:
+        """Where ``vehicle`` ran ('' for the root)."""
 
 
 def _python() -> str:
@@ -114,16 +142,20 @@ class Launcher:
     """Runs one plan. ``run()`` returns the result; the summary is written in any case. ``clock``: the wall
     clock of pacing, progress, the MAVLink side and the run's date (the sim clock is the physics)."""
 
-    def __init__(self, plan: LaunchPlan, clock: Clock = WALL) -> None:
+    def __init__(self, plan: LaunchPlan, clock: Clock = WALL, remote: Remote | None = None) -> None:
+        """``remote``: the remote vehicles are placed by an engine (a Dask cluster), not joined by hand."""
         check_plan(plan)  # every setting within its bounds before anything starts (limits.py)
         self.plan = plan
         self.clock = clock
+        self.remote = remote
         writable_dir(plan.out)  # a read-only or full file system, a file in the way: one line, nothing started
         self.epoch_ns = clock.unix_ns() // NS_PER_S * NS_PER_S
         self.paused = threading.Event()
         """While set, the clock stands still (no ticks); MAVLink keeps answering on the wall clock."""
         self._pause_timer: threading.Timer | None = None
         self._pacing: dict[str, float] | None = None
+        self._root_cost: dict[str, float] | None = None
+        """What the tick loop cost this process (``summary.json``'s ``root``), once it ended normally."""
         """``--speed``'s account of a run that ended normally (``_pacing``)."""
         self.api_port_base, self.gcs_port = plan.api_port_base, plan.gcs_port or 0
         self.tcp_port_base = plan.tcp_port_base or plan.api_port_base
@@ -191,6 +223,8 @@ class Launcher:
         )
         # each autopilot host steps its vehicles' physics too (configured by this file); this process the rest
         in_hosts = frozenset(v for group in self._autopilot_groups() for v in group)
+        if self.remote is not None and self.remote.physics_on_workers:
+            in_hosts |= frozenset(range(plan.vehicles, n))
         if in_hosts:
             try:
                 (plan.out / PHYSICS_FILE).write_bytes(physics_cfg.to_json())
@@ -220,8 +254,13 @@ class Launcher:
         world = open_world(plan.out, self.epoch_ns, n, plan.world_origin, serve_port=plan.view_port)
         stack.callback(world.close)
         local = stack.enter_context(contextlib.ExitStack())
+        remote, opened = self.remote, list[_Run]()
+        if remote is not None:  # after the channel's close: the shares end with the run, then their files come
+            stack.callback(lambda: remote.stop(plan.out, not opened or opened[0].status is not RunStatus.OK))
         stack.callback(channel.close, "end of run")
         channel.attach_physics()
+        if remote is not None:
+            remote.start(channel.address, physics_cfg.to_json())
         summaries = [VehicleSummary(i, _mission_name(plan, i)) for i in range(n)]
         extra, clock = self._summary_extra, self.clock
         checkpoint = Checkpoint(  # summary.json while the run runs; ``run`` is bound below, before the first write
@@ -236,6 +275,7 @@ class Launcher:
             clock=clock,
         )
         run = _Run(channel, world, sup, local, checkpoint, physics_cfg, in_hosts, summaries, settled, wall0)
+        opened.append(run)
         checkpoint.write()
         return run
 
@@ -261,7 +301,8 @@ class Launcher:
                 f"only {len(channel.subscribers())} of {expected} processes joined the channel within {start_s:g} s "
                 f"(see the *.stderr files in {plan.out})"
             )
-        tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress)
+        check = self.remote.check if self.remote is not None else None
+        tree.wait_for_remote(channel, range(plan.vehicles, n), plan.join_timeout_s, plan.progress, check)
 
     def _tell_ports(self, world: WorldTee) -> None:
         """The progress lines of the MAVLink ports (and the live view's address) before anything starts."""
@@ -311,6 +352,9 @@ class Launcher:
                         if e is None
                         else f"the mission of vehicle {s.id} exited with {e.exit_code} ({e.reason})"
                     )
+        if self.remote is not None:
+            for s in summaries:
+                s.host = self.remote.host_of(s.id) or None
         faults = [f.__dict__ for f in channel.faults if f.peer not in run.settled]
         if any(s.crashed for s in summaries) and status == RunStatus.OK:
             status, message = RunStatus.FAILED, "a vehicle crashed"
@@ -328,14 +372,19 @@ class Launcher:
 
     def _summary_extra(self) -> dict[str, Any]:
         plan = self.plan
-        return {
-            "seed": plan.seed,
-            "api_port_base": self.api_port_base,
-            "gcs_port": self.gcs_port,
-            "tick_hz": plan.tick_hz,
-            "physics_hz": plan.physics_hz,
-            "phase_every": plan.phase_every,
-        } | ({"pacing": self._pacing} if self._pacing is not None else {})
+        return (
+            {
+                "seed": plan.seed,
+                "api_port_base": self.api_port_base,
+                "gcs_port": self.gcs_port,
+                "tick_hz": plan.tick_hz,
+                "physics_hz": plan.physics_hz,
+                "phase_every": plan.phase_every,
+            }
+            | ({"pacing": self._pacing} if self._pacing is not None else {})
+            | ({"root": self._root_cost} if self._root_cost is not None else {})
+            | (self.remote.summary(int(self._root_cost["ticks"]) if self._root_cost else 0) if self.remote else {})
+        )
 
     def toggle_pause(self) -> None:
         """Pause or resume the clock (``harness run`` does this on SIGUSR1)."""
@@ -432,7 +481,10 @@ class Launcher:
             if m is None:
                 continue
             menv = dict(
-                env, HARNESS_VEHICLE=str(i), HARNESS_SYSID=str(i + 1), HARNESS_MAVLINK_PORT=str(self.api_port_base + i)
+                env,
+                HARNESS_VEHICLE=str(i),
+                HARNESS_SYSID=str(sysid(i)),
+                HARNESS_MAVLINK_PORT=str(self.api_port_base + i),
             )
             fw = plan.firmware_of(i)
             menv["HARNESS_FIRMWARE"] = fw.value
@@ -490,10 +542,12 @@ class Launcher:
         elsewhere = {v: phys.cfg.spawn(v) for v in range(n) if v not in set(own)}
         """Vehicles whose physics runs in an autopilot host (asked at phase ticks), with their last position."""
         ledger = Ledger(n)
+        cpu0 = _RootCost.now(phys.tick)
         while True:
             t_ns = phys.t_ns
             tick = phys.tick
             if (end_ns is not None and t_ns >= end_ns) or tree.missions_done(channel, missions, plan.vehicles):
+                self._root_cost = cpu0.since(tick, n)
                 if pacer is not None:
                     self._pacing = _pacing(pacer, t_ns, wall0, self.clock.now_ns())
                 return
@@ -544,10 +598,13 @@ class Launcher:
                 for name, code in sup.poll_exits():
                     if name.startswith("autopilot") or name == "network":
                         raise SimulationError(f"the {name} process exited with {code} (see {name}.stderr)")
+                if self.remote is not None:
+                    self.remote.check()
             checkpoint.maybe()
             if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
                 last_progress = self.clock.now_ns()
-                plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
+                shown = missions + (self.remote.missions if self.remote is not None else 0)
+                plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, shown))
 
     def _vehicle_events(
         self, vehicle: int, data: bytes, phys: Physics, world: WorldSink, pacer: Pacer | None
@@ -616,6 +673,44 @@ class Launcher:
             f"sim {t_ns / NS_PER_S:7.1f} s  x{rtf:5.1f} real time  armed {armed}/{len(summaries)}  "
             f"in air {in_air}  missions done {done}/{missions}"
         )
+
+
+@dataclass(frozen=True)
+class _RootCost:
+    """CPU time of the root at a tick: its main thread (the tick loop: channel, ledger, recordings, its own share
+    of physics and autopilots) and the whole process (the MAVLink hub's and the recorders' threads too)."""
+
+    tick: int
+    thread_s: float
+    process_s: float
+
+    @classmethod
+    def now(cls, tick: int) -> _RootCost:
+        return cls(tick, time.thread_time(), time.process_time())
+
+    def since(self, tick: int, vehicles: int) -> dict[str, float]:
+        """From this point to ``tick`` of a run of ``vehicles``: the loop's CPU per tick and per vehicle-tick,
+        and the process's resident memory now and at its peak (MB)."""
+        ticks = max(1, tick - self.tick)
+        thread, process = time.thread_time() - self.thread_s, time.process_time() - self.process_s
+        return {
+            "ticks": tick - self.tick,
+            "loop_cpu_s": thread,
+            "process_cpu_s": process,
+            "loop_cpu_us_per_tick": 1e6 * thread / ticks,
+            "loop_cpu_us_per_vehicle_tick": 1e6 * thread / ticks / max(1, vehicles),
+            "process_cpu_us_per_vehicle_tick": 1e6 * process / ticks / max(1, vehicles),
+            "rss_mb": _rss_mb(),
+            "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        }
+
+
+def _rss_mb() -> float:
+    """This process's resident memory now (MB; 0 where ``/proc`` is not)."""
+    try:
+        return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 def _root_address(plan: LaunchPlan) -> str:

@@ -42,6 +42,8 @@ class VehicleSummary:
     landed: bool = True
     armed: bool = False
     crashed: bool = False
+    host: str | None = None
+    """The cluster worker that flew it (``harness run --cluster``); None: this machine."""
 
 
 @dataclass

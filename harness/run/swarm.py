@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.autopilot.firmware import Firmware
-from harness.core.endpoints import ENV_VEHICLES
+from harness.core.endpoints import ENV_VEHICLES, sysid
 
 SWARM_VEHICLE = -1
 """The channel's vehicle index of a swarm mission (it belongs to no one vehicle)."""
@@ -69,7 +69,7 @@ def swarm_vehicles(
         out.append(
             SwarmVehicle(
                 vehicle=i,
-                sysid=i + 1,
+                sysid=sysid(i),
                 firmware=fw.value,
                 mavsdk_url=f"udpout://{host}:{port}",
                 pymavlink_url=f"udpout:{host}:{port}",

@@ -44,17 +44,25 @@ def wait_for_remote(
     vehicles: Sequence[int],
     timeout_s: float,
     progress: Callable[[str], None] | None,
+    check: Callable[[], None] | None = None,
 ) -> None:
-    """Pump the root channel until child channels hold every remote vehicle (before the first tick)."""
+    """Pump the root channel until child channels hold every remote vehicle (before the first tick).
+    ``check``: the children are placed by an engine, which raises when one of them failed."""
     want = set(vehicles)
     if not want:
         return
-    if progress is not None:
+    if check is None and progress is not None:
         progress(
             f"waiting up to {timeout_s:g} s for vehicles {min(want)}-{max(want)} to join: "
             f"harness join {channel.address} --first-vehicle {min(want)} --vehicles {len(want)} --mission …"
         )
-    if not channel.wait_for(lambda _subs: want <= channel.held_vehicles(), timeout_s):
+
+    def joined(_subs: object) -> bool:
+        if check is not None:
+            check()
+        return want <= channel.held_vehicles()
+
+    if not channel.wait_for(joined, timeout_s):
         missing = sorted(want - channel.held_vehicles())
         raise SimulationError(f"no child channel joined for vehicles {missing} within {timeout_s:g} s")
 

@@ -37,6 +37,9 @@ if TYPE_CHECKING:
     from harness.scenario.plan import LaunchPlan
 
 MAX_VEHICLES = 244
+"""On one machine (one GCS port sees every vehicle; system ids 1-244). A cluster run has no such cap."""
+MAX_RUN_VEHICLES = 1_000_000
+"""What ``--vehicles`` takes at all (``--cluster`` / ``--scheduler``: what the workers hold decides)."""
 MAX_DURATION_S = 1e9
 MAX_WAIT_S = 86_400.0
 PHYSICS_HZ = (10.0, 100_000.0)
@@ -77,7 +80,10 @@ def lowest_port() -> int:
 def vehicle_count_error(n: object) -> str | None:
     """What is wrong with ``n`` as a vehicle count, or None (the scenario loader asks before laying them out)."""
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_VEHICLES:
-        return f"must be 1-{MAX_VEHICLES} (vehicle i is MAVLink system id i + 1; 245 and 255 are ground stations), got {n!r}"
+        return (
+            f"must be 1-{MAX_VEHICLES} on one machine (vehicle i is MAVLink system id i + 1; 245 and 255 are "
+            f"ground stations; more on a Dask cluster: --cluster local:K or --scheduler ADDRESS), got {n!r}"
+        )
     return None
 
 
@@ -117,7 +123,7 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
     n = plan.vehicles
     if any("SIM_SPEEDUP" in p for p in plan.params):  # one pace for the run: ``speed`` (SIM_SPEEDUP shows it)
         raise c.fail("params", "SIM_SPEEDUP is the run's pace: give it as speed (or --speed); it reads it")
-    why = vehicle_count_error(n)
+    why = None if n == 0 and plan.remote_vehicles > 0 else vehicle_count_error(n)  # a root of remote vehicles only
     if why is not None:
         raise c.fail("vehicles", why)
     missions = sum(1 for m in plan.missions[:n] if m is not None)

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from harness.core.clock import NS_PER_S
-from harness.core.endpoints import VehicleEndpoints
+from harness.core.endpoints import VehicleEndpoints, sysid
 from harness.core.errors import ScenarioError
 from harness.simclock import mavsdk_compat, patch
 from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
@@ -203,7 +203,7 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     client = ChannelClient.connect(spec.channel, p.PeerKind.TYPE0, spec.name, vehicle=spec.vehicle)
     rt = SimRuntime(client.welcome.epoch_ns, client.welcome.phase_period_ns, spec.vehicle)
     os.environ.setdefault("HARNESS_VEHICLE", str(spec.vehicle))
-    os.environ.setdefault("HARNESS_SYSID", str(spec.vehicle + 1))
+    os.environ.setdefault("HARNESS_SYSID", str(sysid(spec.vehicle)))
     patch.install(rt)
     ep = VehicleEndpoints.from_env(spec.vehicle)
     from harness.simclock import udp

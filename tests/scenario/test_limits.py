@@ -67,7 +67,8 @@ SCENARIOS = [
     ),
     (
         "vehicles = 100000",
-        "vehicles: must be 1-244 (vehicle i is MAVLink system id i + 1; 245 and 255 are ground stations), got 100000",
+        "vehicles: must be 1-244 on one machine (vehicle i is MAVLink system id i + 1; 245 and 255 are ground "
+        "stations; more on a Dask cluster: --cluster local:K or --scheduler ADDRESS), got 100000",
     ),
     (
         "vehicles = 1\n[mavlink]\napi_port_base = 70000",
@@ -138,8 +139,12 @@ COMMAND_LINES = [
     (["--duration", "inf"], _arg_error("--duration", DURATION, "inf")),
     (["--duration", "-1"], _arg_error("--duration", DURATION, "-1")),
     (["--duration", "0"], _arg_error("--duration", DURATION, "0")),
-    (["--vehicles", "100000"], _arg_error("--vehicles", "must be an integer 1-244", "100000")),
-    (["--vehicles", "0"], _arg_error("--vehicles", "must be an integer 1-244", "0")),
+    (
+        ["--vehicles", "100000"],
+        "harness: --vehicles: must be 1-244 on one machine (vehicle i is MAVLink system id i + 1; 245 and 255 are "
+        "ground stations; more on a Dask cluster: --cluster local:K or --scheduler ADDRESS), got 100000",
+    ),
+    (["--vehicles", "0"], _arg_error("--vehicles", "must be an integer 1-1000000", "0")),
     (["--speed", "inf"], _arg_error("--speed", "must be 'max' or a finite number > 0", "inf")),
     (["--seed", "-1"], _arg_error("--seed", f"must be an integer 0-{2**63 - 1}", "-1")),
     (["--pause-for", "nan"], _arg_error("--pause-for", "must be a finite number > 0 and <= 86400", "nan")),

@@ -32,7 +32,7 @@ _COMMAND_IDS = (mavlink2.MAVLINK_MSG_ID_COMMAND_LONG, mavlink2.MAVLINK_MSG_ID_CO
 
 class Px4Services:
     def __init__(self, api: System, sysid: int) -> None:
-        vehicle = sysid - 1
+        vehicle = api.vehicle  # (not sysid - 1: ids repeat every 244 vehicles in a bigger run)
         self.calibration = CalibrationService(api)
         self.gimbal = GimbalService(api, api.gimbal, sysid) if api.gimbal is not None else None
         self.ftp = FtpService(api, vehicle)

@@ -47,7 +47,7 @@ from harness.autopilot.mavlink.telemetry import BUILDERS, StreamScheduler, missi
 from harness.autopilot.mavlink.transport import GREET_NS, Address, Link, PortsConfig, UdpLink, pack_frames
 from harness.autopilot.services import System
 from harness.core.clock import WALL, Clock
-from harness.core.endpoints import SETTLE_PREFIX
+from harness.core.endpoints import SETTLE_PREFIX, sysid
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +110,7 @@ the same messages are handled in the same loop at any pace."""
 
 
 class MavlinkServer:
-    """PX4-dialect MAVLink endpoint of one vehicle (system id ``vehicle + 1``, component 1).
+    """PX4-dialect MAVLink endpoint of one vehicle (system id ``sysid(vehicle)``: ``vehicle + 1`` up to 244 vehicles; component 1).
 
     ``tap`` is called (on the server thread) with every frame sent and every valid frame received: the
     tlog writer. ``clock``: the wall clock its timers, heartbeats and signing timestamps run on (its hub's).
@@ -134,11 +134,11 @@ class MavlinkServer:
         self.firmware = firmware
         self._trust_unsigned = trust_unsigned
         """With signing: whether an unsigned frame from (is TCP, address) is obeyed all the same (``runlocal.py``)."""
-        self.dialect = make_dialect(firmware, autopilot, vehicle + 1)
+        self.dialect = make_dialect(firmware, autopilot, sysid(vehicle))
         autopilot = self.dialect.api
         self.api = autopilot
         self.vehicle = vehicle
-        self.sysid = vehicle + 1
+        self.sysid = sysid(vehicle)
         self.compid = 1
         self.ports = ports or PortsConfig()
         self.clock = clock
