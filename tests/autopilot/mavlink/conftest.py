@@ -117,7 +117,13 @@ class Rig:
     as possible), with a MavlinkServer talking to a ``Gcs``."""
 
     def __init__(
-        self, gcs: Gcs, seed: int = 7, speed: float | None = 1.0, signing: SigningConfig | None = None, **params: float
+        self,
+        gcs: Gcs,
+        seed: int = 7,
+        speed: float | None = 1.0,
+        signing: SigningConfig | None = None,
+        trust_unsigned: Callable[[bool, tuple[str, int]], bool] | None = None,
+        **params: float,
     ) -> None:
         self.sim = QuadSim(np.random.default_rng(seed))
         self.ap = Autopilot(AutopilotConfig(params=params))
@@ -126,7 +132,8 @@ class Rig:
         self._stop = threading.Event()
         self._frame = self.sim.frame()
         self.step_s(11.0)  # estimator converged, GPS checks passed for 10 s (EKF2): global position ok, armable
-        self.server = MavlinkServer(self.ap, 0, PortsConfig(api_port_base=gcs.port, gcs_port=0), signing)
+        ports = PortsConfig(api_port_base=gcs.port, gcs_port=0)
+        self.server = MavlinkServer(self.ap, 0, ports, signing, trust_unsigned=trust_unsigned)
         self._thread: threading.Thread | None = None
 
     def step_s(self, seconds: float) -> None:
