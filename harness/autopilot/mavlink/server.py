@@ -167,7 +167,9 @@ class MavlinkServer:
         self.streams = StreamScheduler(defaults=dict(dialect.stream_defaults), builders=self.builders)
         self.heartbeat = HeartbeatSchedule()
         self.params = ParamService(autopilot, mav, bytewise=dialect.param_bytewise)
-        self.missions = MissionService(autopilot, mav, float_form=dialect.mission_float_form)
+        self.missions = MissionService(
+            autopilot, mav, float_form=dialect.mission_float_form, check_item=dialect.check_mission_item
+        )
         self.logs = LogService(autopilot, mav)
         self.commands = CommandService(autopilot, self._request_message, self.streams.set_interval)
         self.commands.override(dialect.command_handlers())

@@ -66,12 +66,15 @@ class Gcs:
             self.raw.append(data)
         return [m for m in (self.parser.parse_buffer(data) or []) if not isinstance(m, mavlink2.MAVLink_bad_data)]
 
-    def recv(self, kind: str, timeout_s: float = 3.0, cond: Callable[[Msg], bool] | None = None) -> Msg:
-        """The next message of type ``kind`` (and ``cond``); earlier other messages are dropped."""
+    def recv(
+        self, kind: str | tuple[str, ...], timeout_s: float = 3.0, cond: Callable[[Msg], bool] | None = None
+    ) -> Msg:
+        """The next message of type ``kind`` (one of them, for a tuple) and ``cond``; earlier others are dropped."""
+        kinds = (kind,) if isinstance(kind, str) else kind
         deadline = real_monotonic_ns() + int(timeout_s * 1e9)
         while real_monotonic_ns() < deadline:
             for m in self._read(deadline):
-                if m.get_type() == kind and (cond is None or cond(m)):
+                if m.get_type() in kinds and (cond is None or cond(m)):
                     return m
         raise AssertionError(f"no {kind} within {timeout_s} s")
 
