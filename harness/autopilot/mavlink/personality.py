@@ -73,6 +73,10 @@ class Px4Dialect:
     def tick(self, state: VehicleState, now: int) -> list[Out]:
         return self.px4.tick(state, now)
 
+    @property
+    def busy(self) -> bool:
+        return self.px4.busy
+
     def close(self) -> None:
         self.px4.close()
 

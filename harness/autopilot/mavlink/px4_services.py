@@ -75,5 +75,9 @@ class Px4Services:
             outs += s.tick(state, now)
         return outs
 
+    @property
+    def busy(self) -> bool:
+        return any(s.busy for s in self.services)
+
     def close(self) -> None:
         self.ftp.close()

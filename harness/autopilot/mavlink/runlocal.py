@@ -90,6 +90,29 @@ def socket_inodes(proto: str, addr: Address, proc: Path = Path("/proc")) -> set[
     return found
 
 
+def udp_bound(proc: Path = Path("/proc")) -> set[Address] | None:
+    """Every (address, port) a UDP socket on this machine is bound to (the wildcard as "0.0.0.0" / "::");
+    None when ``/proc`` cannot say (not Linux)."""
+    found: set[Address] = set()
+    read_any = False
+    for table in ("udp", "udp6"):
+        try:
+            lines = (proc / "net" / table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        read_any = True
+        for line in lines:
+            fields = line.split()
+            if len(fields) < 2:
+                continue
+            host, _, port = fields[1].rpartition(":")
+            try:
+                found.add((str(_proc_ip(host)), int(port, 16)))
+            except ValueError:
+                continue
+    return found if read_any else None
+
+
 def _children(pid: int, proc: Path) -> list[int]:
     """Direct children of ``pid`` (every thread's ``children`` file: a child belongs to the thread that forked it)."""
     out: list[int] = []

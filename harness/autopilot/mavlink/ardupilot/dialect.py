@@ -148,6 +148,9 @@ class CopterDialect:
     def check_mission_item(self, m: MAVLinkMessage) -> tuple[int, str]:
         return ardupilot_item_result(m)
 
+    busy = False
+    """Nothing of ArduCopter's own goes on over several ticks."""
+
     def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage:
         shown = self.modes.shown(state.mode)
         base = _M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | _M.MAV_MODE_FLAG_STABILIZE_ENABLED
