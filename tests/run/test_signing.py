@@ -267,21 +267,27 @@ def test_a_stranger_on_another_address_with_a_missions_port_is_not_the_run(tmp_p
         stranger.settimeout(0.2)
         mav = mavlink.MAVLink(None, 250, 190)
 
+        ftp_list = list((bytes(4) + bytes([3, 2]) + bytes(6) + b"/\0").ljust(251, b"\0"))
+        asks = [  # every service: a command, MAVFTP, a parameter, the shell, a mission download
+            mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0),
+            mav.file_transfer_protocol_encode(0, 1, 1, ftp_list),
+            mav.param_request_read_encode(1, 1, b"MIS_TAKEOFF_ALT", -1),
+            mav.serial_control_encode(10, 6, 0, 0, 5, list(b"help\n".ljust(70, b"\0"))),
+            mav.mission_request_list_encode(1, 1, 0),
+        ]
+
         def stranger_arms() -> list[object]:
-            acks = []
-            for _ in range(5):
-                stranger.sendto(
-                    mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav), ("127.0.0.1", vehicle_port)
-                )
+            """Everything the vehicle answers the stranger (nothing: it is no peer, its frames are dropped)."""
+            answers = []
+            for _ in range(2):
+                for msg in asks:
+                    stranger.sendto(msg.pack(mav), ("127.0.0.1", vehicle_port))
                 try:
-                    acks += [
-                        m
-                        for m in mavlink.MAVLink(None).parse_buffer(stranger.recv(65535)) or []
-                        if m.get_type() == "COMMAND_ACK"
-                    ]
+                    while True:
+                        answers += mavlink.MAVLink(None).parse_buffer(stranger.recv(65535)) or []
                 except TimeoutError:
                     pass
-            return acks
+            return answers
 
         assert stranger_arms() == [] and not rig.ap.telemetry.state().armed, "the stranger was obeyed unsigned"
         mission.stdin.write("arm\n")
