@@ -232,6 +232,28 @@ def test_a_shell_flood_does_not_hold_another_clients_heartbeats(gcs: Gcs, vehicl
     assert "nsh: line too long" in out and "HW arch: UAV_HARNESS_SITL" in out, (out, vehicle.attached.server.counters())
 
 
+def test_a_mavftp_burst_flood_does_not_hold_another_clients_heartbeats(gcs: Gcs, vehicle: _Vehicle) -> None:
+    """A client that asks for a burst of the ULog (100 replies each) 3,000 times as fast as it can: another
+    client's heartbeats keep their period (the vehicle answers what it can, 20 ms of requests at a time)."""
+    ftp = _Ftp(gcs)
+    day = ftp.ls(b"/log")[0][1:].encode()
+    name = ftp.ls(b"/log/" + day)[0][1:].split("\t")[0].encode()
+    h, _ = ftp.one(4, b"/log/" + day + b"/" + name + b"\0")
+    assert h[2] == ACK
+    watch = HeartbeatWatch(gcs)
+    time.sleep(2.5)
+    start = time.monotonic()
+    for i in range(3_000):
+        payload = _FTP.pack(i, h[1], 15, 239, 0, 0, 0, 0)
+        gcs.send(gcs.mav.file_transfer_protocol_encode(0, 1, 1, list(payload) + [0] * (251 - len(payload))))
+    flooding = time.monotonic() - start
+    time.sleep(4.0)
+    gap = watch.stop()
+    print(f"MAVFTP burst flood: 3,000 requests sent in {flooding:.2f} s; longest heartbeat gap seen by another "
+          f"client {gap:.2f} s; {vehicle.attached.server.counters().datagrams_rx} datagrams handled")  # fmt: skip
+    assert gap < 2 * HEARTBEAT_PERIOD_S, f"a heartbeat was delayed by more than one period: gap {gap:.2f} s"
+
+
 def test_shell_lines_are_bounded_per_message_and_consoles_are_per_client(gcs: Gcs, vehicle: _Vehicle) -> None:
     """Ten lines in one message: four run at once, the rest at the next ticks, all answered in order; another
     client's half-typed line does not mix into this one's."""
