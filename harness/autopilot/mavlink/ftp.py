@@ -462,11 +462,15 @@ class FtpService(Service):
             raise _os_error(e) from None
         if job is not None:  # a new file asked for: the old one is given up
             job.f.close()
+            del self._crc_jobs[self._peer]
         job = _CrcJob(origin, seq, real, f)
-        block = f.read(CRC_CHUNK + 1)
+        try:
+            block = f.read(CRC_CHUNK + 1)
+        except OSError as e:
+            f.close()
+            raise _os_error(e) from None
         if len(block) <= CRC_CHUNK:
             f.close()
-            self._crc_jobs.pop(self._peer, None)
             reply = self._pack(seq + 1, 0, OP_ACK, OP_CRC32, 0, 0, struct.pack("<I", crc32_px4(block)))
             return [self._out(reply, origin)]
         job.crc = crc32_px4(block)
