@@ -1,4 +1,6 @@
-"""Build hook beside pyproject.toml: the per-vehicle core compiled to C extensions by mypyc.
+"""Build hook beside pyproject.toml: the per-vehicle core compiled to C extensions by mypyc, the sim-time shim
+for C libraries (``harness/simclock/simtime.c``) compiled into the package, and the example missions
+(``missions/``) packaged as ``harness.examples``.
 
 The modules are ``harness.core.native.MODULES`` (read here by path: the package is not installed yet). They
 are compiled when the package is built or installed (``pip install -e .``, as ``dev.py`` does; in place:
@@ -7,6 +9,11 @@ are compiled when the package is built or installed (``pip install -e .``, as ``
 import (a source edited since the build runs as Python, with a warning). With no compiler, or
 ``HARNESS_PURE=1`` at build time, or a failed compile, the install still succeeds, pure Python, and says so
 once.
+
+The shim is a plain shared object (loaded with ctypes, not imported), named by its source's hash
+(``harness.simclock.shim``); it is built whatever ``HARNESS_PURE`` says (it puts MAVSDK's threads on
+the sim clock, it is not the per-vehicle core). Without a compiler the package still installs: the shim is then
+compiled at run time into the user's cache where a compiler exists, else MAVSDK keeps the wall clock.
 """
 
 from __future__ import annotations
@@ -24,22 +31,25 @@ import sysconfig
 from pathlib import Path
 from typing import Any
 
-from setuptools import Extension, setup
+from setuptools import Extension, find_packages, setup
 from setuptools.command.build_ext import build_ext
 
 ROOT = Path(__file__).resolve().parent
 
 
-def _native() -> Any:
-    logging.getLogger("_harness_native").setLevel(logging.ERROR)  # a stale build is what we are about to replace
-    spec = importlib.util.spec_from_file_location("_harness_native", ROOT / "harness" / "core" / "native.py")
+def _by_path(name: str, path: Path) -> Any:
+    """A module of harness that imports nothing from harness, loaded by path (the package is not installed)."""
+    logging.getLogger(name).setLevel(logging.ERROR)  # a stale build is what we are about to replace
+    spec = importlib.util.spec_from_file_location(name, path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
 
 
-NATIVE = _native()
+NATIVE = _by_path("_harness_native", ROOT / "harness" / "core" / "native.py")
+SHIM = _by_path("_harness_shim", ROOT / "harness" / "simclock" / "shim.py")
 
 
 def _say(message: str) -> None:
@@ -85,6 +95,8 @@ def _drop_leftovers() -> None:
     keep = {*NATIVE.MODULES, f"{NATIVE.GROUP}__mypyc"}
     suffixes = tuple(importlib.machinery.EXTENSION_SUFFIXES)
     for path in (ROOT / "harness").rglob("*"):
+        if path.name.startswith(SHIM.PREFIX):
+            continue  # the sim-time shim (not a Python module): _build_shim keeps the current one only
         if path.name.endswith(suffixes):
             name = path.name[: -len(next(s for s in suffixes if path.name.endswith(s)))]
             module = ".".join((*path.relative_to(ROOT).parent.parts, name))
@@ -102,7 +114,10 @@ class BuildNative(build_ext):
         self.distribution.ext_modules = list(_extensions())
         super().finalize_options()
 
+    _shim: Path | None = None
+
     def run(self) -> None:
+        self._build_shim()
         if not self.extensions:
             return
         try:
@@ -118,13 +133,36 @@ class BuildNative(build_ext):
         manifest.write_text(json.dumps({"modules": NATIVE.digests(ROOT / "harness")}, indent=1, sort_keys=True))
         _say(f"compiled the per-vehicle core with mypyc: {len(NATIVE.MODULES)} modules")
 
+    def _inplace(self) -> bool:
+        return bool(self.inplace or getattr(self, "editable_mode", False))
+
     def _manifest(self) -> Path:
-        inplace = self.inplace or getattr(self, "editable_mode", False)
-        return NATIVE.MANIFEST if inplace else Path(self.build_lib) / "harness" / NATIVE.MANIFEST.name
+        return NATIVE.MANIFEST if self._inplace() else Path(self.build_lib) / "harness" / NATIVE.MANIFEST.name
+
+    def _build_shim(self) -> None:
+        """``simtime.c`` compiled beside itself in the package (``simtime-<hash>.so``); a failure is one line."""
+        folder = SHIM.SOURCE.parent if self._inplace() else Path(self.build_lib) / "harness" / "simclock"
+        target = folder / SHIM.shim_name()
+        for old in folder.glob(f"{SHIM.PREFIX}*.so"):
+            if old != target:
+                old.unlink()  # a build of an earlier simtime.c: never loaded, removed
+        why = None if target.is_file() else SHIM.compile_shim(target)
+        if why is None:
+            self._shim = target
+            _say(f"built the sim-time shim for MAVSDK ({target.name})")
+        else:
+            _say(f"{why}: the sim-time shim is not in the package (built at run time if a compiler is there then)")
 
     def get_outputs(self) -> list[str]:
-        return [*super().get_outputs(), str(self._manifest())] if self.extensions else super().get_outputs()
+        outputs = [*super().get_outputs(), str(self._manifest())] if self.extensions else super().get_outputs()
+        return [*outputs, str(self._shim)] if self._shim is not None else outputs
 
 
-# A stand-in until build_ext runs mypyc: the package has extension modules (a platform wheel, build_ext runs)
-setup(ext_modules=[Extension(f"{NATIVE.GROUP}__mypyc", sources=[])], cmdclass={"build_ext": BuildNative})
+# A stand-in until build_ext runs mypyc: the package has extension modules (a platform wheel, build_ext runs).
+# The example missions live in missions/ (where users of a checkout find them) and install as harness.examples.
+setup(
+    packages=[*find_packages(include=["harness", "harness.*"]), "harness.examples"],
+    package_dir={"harness.examples": "missions"},
+    ext_modules=[Extension(f"{NATIVE.GROUP}__mypyc", sources=[])],
+    cmdclass={"build_ext": BuildNative},
+)

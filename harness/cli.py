@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import os
 import signal
 import sys
@@ -85,7 +86,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             sets=_assignments(getattr(a, "set", None) or []),
             out=Path(a.out) if a.out else None,
             seed=a.seed,
-            speed=a.speed,
+            speed=_speed(a),
             duration_s=a.duration,
             network=a.network,
             signing_key_file=a.signing_key_file,
@@ -111,7 +112,7 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             missions=tuple(missions),
             swarm_mission=swarm_mission,
             seed=a.seed or 0,
-            speed=a.speed,
+            speed=_speed(a),
             duration_s=a.duration,
             network=NetworkKind(a.network or "none"),
             progress=None if getattr(a, "no_progress", False) else progress_printer(),
@@ -122,6 +123,24 @@ def _plan_from_args(a: argparse.Namespace, script_args: list[str] | None = None)
             **tree_options(a),
         )
     )
+
+
+_SPEED_NOT_GIVEN = math.nan
+"""``--speed``'s default: not given (``--speed max`` is None)."""
+
+
+def _speed(a: argparse.Namespace) -> float | None:
+    """``--speed``; else PX4 SITL's ``PX4_SIM_SPEED_FACTOR``; else real time for ``harness sitl``, as fast as
+    possible (or the scenario's ``speed``) otherwise."""
+    from harness.scenario.sitl_defaults import sitl_speed
+
+    given = getattr(a, "speed", _SPEED_NOT_GIVEN)
+    if given is not _SPEED_NOT_GIVEN:
+        return given
+    env = sitl_speed(os.environ)
+    if env is not None:
+        return env
+    return 1.0 if a.command == "sitl" else None
 
 
 _CLI_NAMES = {
@@ -317,16 +336,40 @@ def _cmd_view(a: argparse.Namespace, rest: list[str]) -> int:
 
 
 def _cmd_demo(a: argparse.Namespace, rest: list[str]) -> int:
-    import harness
+    from harness.bundled import DEMO, example
 
-    demo = Path(harness.__file__).resolve().parent.parent / "missions" / "swarm_demo.py"
-    if not demo.is_file():
-        raise ScenarioError(f"the demo mission {demo} is missing (run the demo from a clone of the repository)")
-    a.mission = [str(demo)]
+    a.mission = [str(example(DEMO).path)]
     a.vehicles = a.vehicles or 3
     a.network = a.network or "builtin"  # the swarm flocks over the radio
     a.plot = True
     return _cmd_run(a, rest)
+
+
+def _cmd_examples(a: argparse.Namespace, rest: list[str]) -> int:
+    """List the example missions, or copy some into a folder."""
+    from harness.bundled import copy_examples, examples, examples_dir
+
+    if a.action == "list":
+        if a.names or a.all:
+            raise ScenarioError("`harness examples` lists them all; to copy some: harness examples copy NAME…")
+        items = examples()
+        width = max(len(e.name) for e in items)
+        for e in items:
+            print(f"{e.name:<{width}}  {e.summary}")
+        print(f"\n{len(items)} example missions in {examples_dir()}")
+        print(
+            "copy one here: harness examples copy takeoff_and_land.py; fly it: harness run --mission takeoff_and_land.py"
+        )
+        return 0
+    if a.action == "path":
+        print(examples_dir())
+        return 0
+    if bool(a.names) == a.all:
+        raise ScenarioError("name the examples to copy (`harness examples` lists them), or give --all alone")
+    names = [e.name for e in examples()] if a.all else a.names
+    for path in copy_examples(names, Path(a.to), force=a.force):
+        print(path)
+    return 0
 
 
 def _cmd_sitl(a: argparse.Namespace, rest: list[str]) -> int:
@@ -363,7 +406,12 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
         metavar="PATH",
         help="one script that commands every vehicle (it reads their addresses from $HARNESS_VEHICLES)",
     )
-    r.add_argument("--speed", type=ct.speed, default=None, help="'max' (default) or a real-time factor")
+    r.add_argument(
+        "--speed",
+        type=ct.speed,
+        default=_SPEED_NOT_GIVEN,
+        help="'max' (default; $PX4_SIM_SPEED_FACTOR when set) or a real-time factor",
+    )
     r.add_argument("--duration", type=ct.duration, default=None, help="sim-time limit in seconds")
     r.add_argument("--network", choices=["builtin", "ns3", "none"], default=None)
     r.add_argument("--seed", type=ct.seed, default=None)
@@ -425,9 +473,19 @@ def _add_run_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--join-timeout", type=float, default=600.0, help="wall seconds to wait for the remote vehicles")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("uav-harness")
+    except PackageNotFoundError:
+        return "(not installed: run from a source tree)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = ct.OneLineParser(prog="harness", description="Lockstep co-simulation of multirotor UAV swarms.")
     ap.add_argument("-v", "--verbose", action="count", default=0)
+    ap.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("run", help="a headless batch run: physics, autopilots, network and missions")
@@ -442,14 +500,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser(
         "demo",
-        help="3 vehicles flock over the radio to a waypoint and home (missions/swarm_demo.py); plots and 3D view",
+        help="3 vehicles flock over the radio to a waypoint and home (the swarm_demo.py example); plots and 3D view",
     )
     _add_run_options(d)
     d.set_defaults(func=_cmd_demo)
 
+    ex = sub.add_parser("examples", help="list the example missions, or copy some into a folder of yours")
+    ex.add_argument("action", nargs="?", choices=("list", "copy", "path"), default="list")
+    ex.add_argument("names", nargs="*", metavar="NAME", help="examples to copy (e.g. takeoff_and_land.py)")
+    ex.add_argument("--all", action="store_true", help="copy every example")
+    ex.add_argument("--to", default=".", metavar="DIR", help="folder to copy them into (default: this one)")
+    ex.add_argument("--force", action="store_true", help="overwrite files of the same name there")
+    ex.set_defaults(func=_cmd_examples)
+
     st = sub.add_parser("sitl", help="vehicles at real time for QGroundControl and hand-run scripts")
     _add_run_options(st)
-    st.set_defaults(func=_cmd_sitl, speed=1.0)
+    st.set_defaults(func=_cmd_sitl)
 
     vw = sub.add_parser("view", help="open a run's 3D view (world.rrd) in Rerun's viewer")
     vw.add_argument("dir", help="run directory (or a .rrd file)")

@@ -29,7 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("harness.scenario",),
     ("harness.run",),
     ("harness.sweep",),
-    ("harness.cli", "harness.cli_run", "harness.cli_types", "harness.pytest_plugin"),
+    ("harness.cli", "harness.cli_run", "harness.cli_types", "harness.pytest_plugin", "harness.bundled"),
 )
 """Bottom to top: a module may import from its own layer and the layers below, never from one above.
 The longest matching prefix decides (``harness.cli_run`` is not ``harness.cli``'s submodule: it is listed)."""

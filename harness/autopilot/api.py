@@ -259,6 +259,8 @@ class MavCmd(enum.IntEnum):
 
 SKIPPED_MISSION_COMMANDS = frozenset({178, 195, 197, 206, 1000, 1001, 2000, 2001, 2500, 2501})
 """Mission items accepted and stepped over at once (speed change is applied, then stepped over)."""
+CAMERA_MISSION_COMMANDS = frozenset({206, 2000, 2001, 2500, 2501})
+"""Of those, the camera's: handed to the autopilot's camera as they are passed (PX4 re-issues them)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -32,6 +32,8 @@ from harness.autopilot.api import (
     StatusText,
     TickStatus,
 )
+from harness.autopilot.camera import CameraDevice
+from harness.autopilot.events import VehicleEvent
 from harness.autopilot.failures import FailureInjector
 from harness.autopilot.flight import FlightCore
 from harness.autopilot.flightlog import FlightLog, FlightLogFiles
@@ -42,6 +44,7 @@ from harness.autopilot.manual import ManualControl
 from harness.autopilot.mission import MissionPlans
 from harness.autopilot.offboard import OffboardInput
 from harness.autopilot.params import Params
+from harness.autopilot.simworld import SimWorld
 from harness.autopilot.supervisor import Supervisor
 from harness.autopilot.telemetry import TelemetryBell, TelemetryFeed
 from harness.core.clock import WALL, Clock
@@ -49,6 +52,8 @@ from harness.core.errors import ScenarioError
 from harness.core.geo import GeoRef
 from harness.fdm.frame import SensorFrame
 
+_NO_EVENTS: list[VehicleEvent] = []
+"""``take_events``'s answer when nothing happened (never changed: callers only read it)."""
 _MODE_NUMBERS: dict[FlightMode, tuple[int, int]] = {m: (int(m.value[0]), int(m.value[1])) for m in FlightMode}
 """PX4 (main, sub) mode numbers of each flight mode, for END-TICK-AC (``FlightMode.value`` is an enum
 property: computed once here instead of twice per tick)."""
@@ -101,6 +106,8 @@ class Autopilot:
         self.mission = MissionPlans(self, self.action)
         self.gripper = Grippers(self)
         self.gimbal = GimbalDevice(self)
+        self.world = SimWorld(self.params, lambda: self.core.battery)
+        self.camera = CameraDevice(self.lock)
         self.telemetry = TelemetryFeed(self, self.failure, self.gripper)
         self.bell = TelemetryBell()
         self.log_files = FlightLogFiles(self)
@@ -118,10 +125,22 @@ class Autopilot:
             c = self.core
             failure = self.failure
             self.manual_control.pre_step()
-            motors = c.motors = failure.motors(c.step(failure.sensors(frame)))
+            world = self.world
+            if world.active:  # SIM_* sensor and motor knobs (ArduPilot SITL's)
+                frame = world.sensors(frame)
+                motors = c.motors = world.motors(failure.motors(c.step(failure.sensors(frame))))
+            else:
+                motors = c.motors = failure.motors(c.step(failure.sensors(frame)))
             gimbal = self.gimbal
             if gimbal.used:
                 gimbal.step(c.t_ns, c.est)
+            nav = c.nav
+            if nav.camera_items:  # the mission's camera items, re-issued to the camera as PX4 does
+                for it in nav.take_camera_items():
+                    self.camera.mission_item(it, c.t_ns)
+            if self.camera.active:
+                self.camera.home_alt_m = self.home.alt_amsl_m if self.home is not None else 0.0
+                self.camera.step(c.t_ns, frame.truth, c.landed_state != LandedState.ON_GROUND)
             if self.flight_log is not None:
                 self.flight_log.record(self)
             if c.t_ns >= self._next_super_ns:
@@ -147,6 +166,22 @@ class Autopilot:
         if ring is not None:  # outside the lock: the MAVLink side reads the state through the locked services
             ring()
         return motors
+
+    def take_events(self) -> list[VehicleEvent]:
+        """What happened for the physics and the recordings since the last call (``harness.autopilot.events``):
+        a SIM_* change (applied before the physics step after this tick), the camera's pictures."""
+        if not (self.world.pending or self.camera.recorded):
+            return _NO_EVENTS  # (every tick but a few: nothing made)
+        out: list[VehicleEvent] = []
+        if self.world.pending:
+            change = self.world.take_change(self.core.t_ns)
+            if change is not None:
+                out.append(change)
+        cam = self.camera
+        if cam.recorded:
+            out += cam.recorded
+            cam.recorded = []
+        return out
 
     def tick_status(self) -> TickStatus:
         """Armed, landed state, PX4 mode and the gimbal's attitude (None while unused), for END-TICK-AC

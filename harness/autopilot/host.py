@@ -21,7 +21,9 @@ from typing import Any, Protocol
 import msgspec
 
 from harness.autopilot.autopilot import Autopilot, AutopilotConfig
+from harness.autopilot.events import VehicleEvent, encode_events
 from harness.core.errors import ScenarioError, SimulationError
+from harness.fdm.environment import WorldChange
 from harness.fdm.frame import decode_frame
 from harness.fdm.physics import Physics
 from harness.wire import protocol as p
@@ -119,7 +121,9 @@ def _answer(client: ChannelClient, autopilots: dict[int, Autopilot], msg: p.Begi
         frame = decode_frame(msg.frame)
     except (msgspec.DecodeError, msgspec.ValidationError) as exc:
         raise SimulationError(f"{client.name}: bad sensor frame for vehicle {msg.vehicle}: {exc}") from None
-    return p.EndTickAC(msg.t_ns, msg.vehicle, ap.step(frame), p.pack_status(*ap.tick_status()))
+    motors = ap.step(frame)
+    events = encode_events(ap.take_events())
+    return p.EndTickAC(msg.t_ns, msg.vehicle, motors, p.pack_status(*ap.tick_status()), events=events)
 
 
 class _Inbox:
@@ -166,11 +170,13 @@ def serve_worker(
     owned = physics.owned
     ticks, next_phase_ns = 0, 0
     records: dict[int, list[bytes]] = {v: [] for v in owned}
+    changes: dict[int, list[VehicleEvent]] = {v: [] for v in owned}
+    """The vehicles' events since the last END-TICK-AC (world changes applied here), for the recording."""
     sent = dict(mavlink_sent or {})
     inbox, phases = _Inbox(client), _Inbox(clock)
     while stop is None or not stop.is_set():
         while True:  # every tick up to the next phase tick, the autopilots of that one included
-            answers = _step_autopilots(autopilots, physics, records)
+            answers = _step_autopilots(autopilots, physics, records, changes)
             ticks += 1
             if physics.t_ns >= next_phase_ns:
                 break
@@ -192,8 +198,9 @@ def serve_worker(
         for v, (m, status) in zip(owned, answers, strict=True):
             told = sent.get(v)
             mavlink = p.MAVLINK_UNKNOWN if told is None else 1 if told() else 0
-            out.append(p.EndTickAC(t_ns, v, m, status, b"".join(records[v]), mavlink))
+            out.append(p.EndTickAC(t_ns, v, m, status, b"".join(records[v]), mavlink, encode_events(changes[v])))
             records[v].clear()
+            changes[v].clear()
         client.send_many(out)
         physics.step([m for m, _ in answers])
         while True:  # phase 0 of this tick ends when its phase 1 begins
@@ -208,10 +215,13 @@ def serve_worker(
 
 
 def _step_autopilots(
-    autopilots: dict[int, Autopilot], physics: Physics, records: dict[int, list[bytes]]
+    autopilots: dict[int, Autopilot],
+    physics: Physics,
+    records: dict[int, list[bytes]],
+    changes: dict[int, list[VehicleEvent]],
 ) -> list[tuple[tuple[float, float, float, float], int]]:
     """Every autopilot's step with its own vehicle's frame at this tick (motors, status), recorded with
-    the frame's truth."""
+    the frame's truth; a change of a vehicle's world applied to the physics before its next step."""
     out = []
     for frame in physics.frames():
         ap = autopilots[frame.vehicle]
@@ -219,6 +229,11 @@ def _step_autopilots(
         status = p.pack_status(*ap.tick_status())
         records[frame.vehicle].append(p.pack_tick(frame.truth, motors, status))
         out.append((motors, status))
+        if ap.world.pending or ap.camera.recorded:
+            for event in ap.take_events():
+                if isinstance(event, WorldChange):
+                    physics.apply(frame.vehicle, event)
+                changes[frame.vehicle].append(event)
     return out
 
 

@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from harness.autopilot.api import (
+    CAMERA_MISSION_COMMANDS,
     SKIPPED_MISSION_COMMANDS,
     AttitudeTarget,
     FlightMode,
@@ -99,6 +100,8 @@ class Navigator:
         self.reached: list[int] = []
         self.finished = False
         self.new_reached: list[int] = []
+        self.camera_items: list[MissionItem] = []
+        """The mission's camera items passed since the autopilot last took them (``take_camera_items``)."""
         self.mission_done = False
 
     # ---------- helpers ----------
@@ -228,6 +231,10 @@ class Navigator:
     def set_mode_hook(self, mode: FlightMode, hook: Callable[[float], None]) -> None:
         """Let ``hook(dt)`` make the setpoint in ``mode`` (sticks, follow target): it calls :meth:`track`."""
         self.mode_hooks[mode] = hook
+
+    def take_camera_items(self) -> list[MissionItem]:
+        out, self.camera_items = self.camera_items, []
+        return out
 
     def take_reached(self) -> list[int]:
         """Items reached since the last call."""
@@ -397,6 +404,8 @@ class Navigator:
             if cmd in SKIPPED_MISSION_COMMANDS or cmd not in _NAV_COMMANDS:
                 if cmd == MavCmd.DO_CHANGE_SPEED and it.param2 > 0:
                     self.cruise_m_s = float(it.param2)
+                elif cmd in CAMERA_MISSION_COMMANDS:
+                    self.camera_items.append(it)
                 self._reach()
                 continue
             break

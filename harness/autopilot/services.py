@@ -11,6 +11,7 @@
     system.gripper     payload grippers (MAV_CMD_DO_GRIPPER)            } never probed for
     system.gimbal      a 2-axis camera gimbal (gimbal manager v2)       }
     system.log_files   the flight logs offered over MAVLink             }
+    system.camera      a survey camera (MAVLink camera protocol v2)     }
     system.bell        the stepping thread's call to the MAVLink side   }
 
 ``harness.autopilot.autopilot.Autopilot`` composes them over one flight core; a firmware dialect
@@ -42,6 +43,7 @@ from harness.autopilot.api import (
     StatusText,
     VehicleState,
 )
+from harness.autopilot.camera import CameraDevice
 from harness.autopilot.params import Params
 
 
@@ -190,5 +192,10 @@ class System(Protocol):
     def gimbal(self) -> Gimbal | None: ...
     @property
     def log_files(self) -> LogFiles | None: ...
+    @property
+    def camera(self) -> CameraDevice | None:
+        """A survey camera (``harness.autopilot.camera``; the MAVLink camera protocol speaks for it)."""
+        ...
+
     @property
     def bell(self) -> Bell | None: ...

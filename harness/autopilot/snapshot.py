@@ -18,6 +18,9 @@ from harness.autopilot.flight import FlightCore
 from harness.autopilot.mathutil import quat_to_euler
 from harness.core.geo import Vec3
 
+GPS_TIMEOUT_NS = 4_000_000_000
+"""A GPS that sent nothing for this long is gone (ArduPilot's AP_GPS ``GPS_TIMEOUT_MS``)."""
+
 
 def build_state(
     c: FlightCore,
@@ -35,9 +38,9 @@ def build_state(
     lat, lon, alt = e.geo()
     roll, pitch, yaw = quat_to_euler(e.q)
     g = e.gps
-    gps = (
+    gps = (  # a receiver silent for GPS_TIMEOUT_NS reports no GPS (a disabled or failed one: fix type 0)
         GpsInfo(g.fix_type, g.satellites, g.eph_m, g.epv_m, g.lat_deg, g.lon_deg, g.alt_amsl_m, g.vel_ned_m_s)
-        if g is not None
+        if g is not None and t - g.measured_at_ns < GPS_TIMEOUT_NS
         else GpsInfo()
     )
     fresh = 1_000_000_000

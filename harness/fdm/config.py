@@ -107,6 +107,8 @@ class PhysicsConfig:
     spawn_ned_m: tuple[Vec3, ...] | None = None
     """Where each vehicle starts (on the ground when d = 0); default: a grid 5 m apart."""
     spawn_spacing_m: float = 5.0
+    heading_deg: float = 0.0
+    """Every vehicle's heading at the start (true, degrees)."""
     sensors: SensorConfig = field(default_factory=SensorConfig)
     drag: bool = True
     crash_speed_m_s: float = 3.0

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import msgspec
 import numpy as np
 
 from harness.core.errors import ScenarioError
@@ -124,3 +125,27 @@ class Turbulence:
         g1 = g[1] = a * g[1] + b * z1
         g2 = g[2] = a * g[2] + b * z2 * 0.5  # vertical gusts are weaker near the ground
         return w[0] + g0, w[1] + g1, w[2] + g2
+
+
+class WorldChange(msgspec.Struct, array_like=True, frozen=True, tag="world"):
+    """A change of one vehicle's simulated world asked for from its autopilot (ArduPilot's ``SIM_*``
+    parameters; ``harness.autopilot.simworld``), applied by whoever steps its physics before the physics step
+    that follows the tick ``t_ns`` (END-TICK-AC ``events``), and recorded. None: unchanged."""
+
+    t_ns: int
+    wind_ned_m_s: tuple[float, float, float] | None = None
+    """The steady wind (where the air moves to)."""
+    turbulence: float | None = None
+    """Gust standard deviation [m/s]."""
+    speedup: float | None = None
+    """The run's pace (times real time; 0 as fast as possible): the run's, not the vehicle's."""
+
+    def wind(self, before: WindConfig) -> WindConfig | None:
+        """The wind after this change (None: unchanged)."""
+        if self.wind_ned_m_s is None and self.turbulence is None:
+            return None
+        return WindConfig(
+            steady_ned_m_s=self.wind_ned_m_s if self.wind_ned_m_s is not None else before.steady_ned_m_s,
+            turbulence=self.turbulence if self.turbulence is not None else before.turbulence,
+            turbulence_length_m=before.turbulence_length_m,
+        )

@@ -19,7 +19,7 @@ import numpy as np
 from harness.core.errors import ScenarioError, SimulationError
 from harness.core.geo import Vec3, quat_from_euler
 from harness.fdm.config import PhysicsConfig, SensorConfig
-from harness.fdm.environment import TURBULENCE_LEVELS, Turbulence, WindConfig, WorldOrigin
+from harness.fdm.environment import TURBULENCE_LEVELS, Turbulence, WindConfig, WorldChange, WorldOrigin
 from harness.fdm.frame import MOTOR_COUNT, SensorFrame, Truth
 from harness.fdm.params import FT_PER_M, G_M_S2, M_PER_FT, N_PER_LBF, models_root
 from harness.fdm.sensors import SensorModel
@@ -70,7 +70,7 @@ class _Vehicle:
         fdm["ic/lat-geod-deg"] = lat
         fdm["ic/long-gc-deg"] = lon
         fdm["ic/h-agl-ft"] = (max(0.0, -d) + q.skid_below_cg_m) * FT_PER_M
-        fdm["ic/psi-true-deg"] = 0.0
+        fdm["ic/psi-true-deg"] = cfg.heading_deg
         fdm.set_dt(1.0 / cfg.substep_hz)
         if not cfg.drag:
             fdm["aero/cda-ft2"] = 0.0
@@ -160,6 +160,16 @@ class Physics:
     def set_wind(self, wind: WindConfig) -> None:
         """Change the wind of every vehicle (tests, scenario events)."""
         for v in self.vehicles:
+            v.turbulence = Turbulence(wind, v.sensors.rng)
+
+    def apply(self, vehicle: int, change: WorldChange) -> None:
+        """A change of ``vehicle``'s world from its autopilot, before the next step (a vehicle simulated
+        elsewhere is not this instance's business)."""
+        v = self._by_index.get(vehicle)
+        if v is None:
+            return
+        wind = change.wind(v.turbulence.cfg)
+        if wind is not None:
             v.turbulence = Turbulence(wind, v.sensors.rng)
 
     def step(self, motors: Sequence[Sequence[float]]) -> list[SensorFrame]:

@@ -31,6 +31,8 @@ Entities (``world`` is NED, x north, y east, z down, as ``ViewCoordinates.FRD``)
 - ``series/*``: altitude, speed, battery, link quality per vehicle, real-time factor;
 - ``map/vehicles``: latitude and longitude for the map view (needs map tiles, i.e. a network; the 3D
   view needs nothing);
+- ``world/captures/<i>``: the points where vehicle ``i``'s camera took its pictures, and under it ``frustum``,
+  the last picture's frustum from the camera down to the ground (its footprint);
 - ``events``: the run's events (pause, crash, ...) as a text log.
 """
 
@@ -45,6 +47,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from harness.autopilot.camera import Capture
 from harness.core.clock import NS_PER_S, WALL, Clock
 from harness.record.sample import VehicleSample, WorldEvent, gimbal_of
 from harness.record.scene import (
@@ -132,6 +135,8 @@ class RrdRecorder:
         self._gimbals: dict[int, tuple[list[float], list[Any], list[Any]]] = {}
         """Each vehicle's gimbal samples of this batch (times, positions, camera quaternions xyzw)."""
         self._gimbal_shown: set[int] = set()
+        self._captures: dict[int, list[tuple[float, float, float]]] = {}
+        """Each vehicle's capture points so far."""
         self._events_file: Any = None
         self._events_rest = b""
         self._static()
@@ -171,6 +176,24 @@ class RrdRecorder:
         text = kind + (" " + " ".join(f"{k}={v}" for k, v in detail.items()) if detail else "")
         level = rr.TextLogLevel.ERROR if kind == WorldEvent.CRASH else rr.TextLogLevel.INFO
         self._rec.log("events", rr.TextLog(text, level=level))
+
+    def capture(self, vehicle: int, c: Capture) -> None:
+        """The picture's point (with the vehicle's earlier ones) and its frustum down to the ground: the image's
+        footprint, drawn with the camera fixed to the body looking straight down."""
+        rr = self._rr
+        self._rec.set_time("sim_time", duration=c.t_ns / NS_PER_S)
+        pts = self._captures.setdefault(vehicle, [])
+        pts.append(c.pos_ned_m)
+        color = vehicle_color(vehicle)
+        self._rec.log(f"world/captures/{vehicle}", rr.Points3D(pts, colors=[color], radii=0.25))
+        w, x, y, z = c.q
+        self._rec.log(
+            f"world/captures/{vehicle}/frustum",
+            rr.Transform3D(translation=c.pos_ned_m, quaternion=rr.Quaternion(xyzw=[x, y, z, w])),
+        )
+        depth = max(0.5, -c.pos_ned_m[2])  # to the ground (the origin's level)
+        down = [[(-p[2], p[1], p[0]) for p in strip] for strip in camera_frustum(depth)]  # optical axis: body z
+        self._rec.log(f"world/captures/{vehicle}/frustum/lines", rr.LineStrips3D(down, colors=[color], radii=0.05))
 
     def flush(self) -> None:
         self._send_batch()

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import enum
 import math
+from typing import Any
 
 import msgspec
 
+from harness.autopilot.camera import Capture
 from harness.autopilot.mathutil import quat_to_euler
 from harness.core.geo import Quat, Vec3, quat_from_euler
 from harness.wire.protocol import unpack_gimbal
@@ -64,3 +66,22 @@ class WorldEvent(enum.StrEnum):
     PAUSED = "paused"
     RESUMED = "resumed"
     CRASH = "crash"
+    SIM = "sim"
+    """A vehicle's simulated world changed (``SIM_*``): the wind, the pace."""
+    CAPTURE = "capture"
+    """A vehicle's camera took a picture (``capture_detail``)."""
+
+
+def capture_detail(vehicle: int, c: Capture) -> dict[str, Any]:
+    """A picture as ``/sim/events`` holds it: the geotag CAMERA_IMAGE_CAPTURED carries, from the ground truth."""
+    return {
+        "vehicle": vehicle,
+        "index": c.index,
+        "lat_deg": c.lat_deg,
+        "lon_deg": c.lon_deg,
+        "alt_amsl_m": c.alt_amsl_m,
+        "relative_alt_m": c.relative_alt_m,
+        "pos_ned_m": list(c.pos_ned_m),
+        "q": list(c.q),
+        "file_url": c.file_url,
+    }

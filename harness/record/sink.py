@@ -18,8 +18,9 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, Protocol
 
+from harness.autopilot.camera import Capture
 from harness.core.files import RecordingError
-from harness.record.sample import VehicleSample
+from harness.record.sample import VehicleSample, WorldEvent, capture_detail
 from harness.record.world import WorldRecorder
 
 if TYPE_CHECKING:
@@ -53,6 +54,10 @@ class WorldSink(Protocol):
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None: ...
 
     def event(self, t_ns: int, kind: str, detail: dict[str, Any]) -> None: ...
+
+    def capture(self, vehicle: int, c: Capture) -> None:
+        """A picture vehicle ``vehicle``'s camera took (``/sim/events`` kind ``capture``; the view's capture points)."""
+        ...
 
     def flush(self) -> None: ...
 
@@ -183,6 +188,10 @@ class WorldTee:
         except OSError as exc:
             self._mcap_failed(exc)
         self._guard(lambda v: v.event(t_ns, kind, detail))
+
+    def capture(self, vehicle: int, c: Capture) -> None:
+        self.event(c.t_ns, WorldEvent.CAPTURE, capture_detail(vehicle, c))
+        self._guard(lambda v: v.capture(vehicle, c))
 
     def attach_autopilots(self, aps: Mapping[int, System]) -> None:
         self._guard(lambda v: v.attach_autopilots(aps))

@@ -29,6 +29,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import msgspec
+
+from harness.autopilot.camera import Capture
+from harness.autopilot.events import decode_events
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.process_config import AutopilotProcessConfig
 from harness.channel import Channel, ChannelConfig
@@ -179,7 +183,8 @@ class Launcher:
             seed=plan.seed,
             substep_hz=plan.physics_hz,
             tick_hz=plan.tick_hz,
-            origin=WorldOrigin(*plan.origin),
+            origin=WorldOrigin(*plan.world_origin),
+            heading_deg=plan.heading_deg or 0.0,
             wind=WindConfig(steady_ned_m_s=plan.wind_ned_m_s, turbulence=plan.turbulence),
             spawn_ned_m=plan.spawn_ned_m,
             sensors=SensorConfig.for_gps(plan.gps, noise=plan.sensor_noise),
@@ -212,7 +217,7 @@ class Launcher:
         settled: list[str] = []
         # a mission the channel saw only disconnect (os._exit, kill -9): its process says how it ended
         stack.callback(lambda: settled.extend(settle(channel.mission_exits, sup.procs, mission_process(plan), 2.0)))
-        world = open_world(plan.out, self.epoch_ns, n, plan.origin, serve_port=plan.view_port)
+        world = open_world(plan.out, self.epoch_ns, n, plan.world_origin, serve_port=plan.view_port)
         stack.callback(world.close)
         local = stack.enter_context(contextlib.ExitStack())
         stack.callback(channel.close, "end of run")
@@ -357,6 +362,7 @@ class Launcher:
                     vehicle=i,
                     params={
                         **core_param_defaults(plan.firmware_of(i)),
+                        "SIM_SPEEDUP": plan.speed or 0.0,
                         **(plan.params[i] if i < len(plan.params) else {}),
                     },
                 ),
@@ -389,7 +395,8 @@ class Launcher:
         (100 process starts take long enough on a busy machine for the first ones' handshakes to time out)."""
         plan = self.plan
         env = tree.secret_env(dict(os.environ, HARNESS_CHANNEL=address, HARNESS_RUN_DIR=str(plan.out)), plan.secret)
-        overrides = {i: dict(p) for i, p in enumerate(plan.params) if p}
+        pace = {"SIM_SPEEDUP": plan.speed or 0.0}  # the run's pace, as ArduPilot's SIM_SPEEDUP reads it
+        overrides = {i: pace | (plan.params[i] if i < len(plan.params) else {}) for i in range(plan.vehicles)}
         for k, group in enumerate(self._autopilot_groups()):
             name = f"autopilot-{k}" if k else "autopilot"
             config = AutopilotProcessConfig(
@@ -525,6 +532,8 @@ class Launcher:
                 else:
                     motors[e.vehicle] = row.motors[e.vehicle] = e.motors
                     row.status[e.vehicle] = e.status
+                if e.events:  # SIM_* changes (before the next physics step), pictures
+                    pacer = self._vehicle_events(e.vehicle, e.events, phys, world, pacer)
             done = list(ledger.complete())
             if done:
                 self.record_rows(done, record_every, summaries, world)
@@ -539,6 +548,23 @@ class Launcher:
             if plan.progress is not None and self.clock.now_ns() - last_progress > 500_000_000:
                 last_progress = self.clock.now_ns()
                 plan.progress(self._progress_line(t_ns, last_progress - wall0, summaries, channel, missions))
+
+    def _vehicle_events(
+        self, vehicle: int, data: bytes, phys: Physics, world: WorldSink, pacer: Pacer | None
+    ) -> Pacer | None:
+        """A vehicle's events: changes of its simulated world applied (a host's vehicle: applied there) and
+        recorded, a new ``SIM_SPEEDUP`` pacing the run from now on (0: as fast as possible); its pictures recorded.
+        Returns the pacer."""
+        for event in decode_events(data):
+            if isinstance(event, Capture):
+                world.capture(vehicle, event)
+                continue
+            phys.apply(vehicle, event)
+            world.event(event.t_ns, WorldEvent.SIM, {"vehicle": vehicle, **msgspec.structs.asdict(event)})
+            if event.speedup is not None:
+                now = self.clock.now_ns()
+                pacer = Pacer(event.speedup, now - int(event.t_ns / event.speedup)) if event.speedup > 0 else None
+        return pacer
 
     @staticmethod
     def record_rows(rows: list[Row], record_every: int, summaries: list[VehicleSummary], world: WorldSink) -> None:

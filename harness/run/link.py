@@ -11,6 +11,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol
 
 from harness.autopilot.api import TickStatus
+from harness.autopilot.events import VehicleEvent, encode_events
 from harness.channel import Channel
 from harness.core.geo import Vec3
 from harness.fdm.frame import SensorFrame, encode_frame
@@ -22,6 +23,7 @@ class LocalFlightStack(Protocol):
 
     def step(self, frame: SensorFrame) -> tuple[float, float, float, float]: ...
     def tick_status(self) -> TickStatus: ...
+    def take_events(self) -> list[VehicleEvent]: ...
 
 
 class NativeLink:
@@ -53,11 +55,13 @@ class NativeLink:
         stack = self._local[v]
         motors = stack.step(self._frames[v])
         status = p.pack_status(*stack.tick_status())
+        taken = stack.take_events()
+        events = encode_events(taken) if taken else b""
         sent = self._sent.get(v)
         if sent is None or m.tick % self._phase_every:
-            return p.EndTickAC(m.t_ns, v, motors, status)
+            return p.EndTickAC(m.t_ns, v, motors, status, events=events)
         # after the step: what its bell sent in this tick counts
-        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if sent() else 0)
+        return p.EndTickAC(m.t_ns, v, motors, status, b"", 1 if sent() else 0, events)
 
     def exchange(
         self, t_ns: int, tick: int, frames: Sequence[SensorFrame], elsewhere: Mapping[int, Vec3] | None = None

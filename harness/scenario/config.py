@@ -12,13 +12,14 @@ from __future__ import annotations
 import copy
 import difflib
 import math
+import os
 import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from harness.autopilot.firmware import Firmware
+from harness.autopilot.firmware import Firmware, firmware_of
 from harness.core.errors import ScenarioError
 from harness.core.files import read_text, script_file
 from harness.core.limits import cut, depth, shown
@@ -26,6 +27,7 @@ from harness.fdm.sensors import GPS_PROFILES, GpsProfile, gps_profile_names
 from harness.net.model import NetworkKind
 from harness.scenario.limits import check_plan, vehicle_count_error
 from harness.scenario.plan import LaunchPlan, MissionPlan
+from harness.scenario.sitl_defaults import sitl_home
 
 _TOP = {
     "seed",
@@ -250,7 +252,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
 
     missions, spawns, params = _vehicles(ctx, raw.get("vehicles"))
     firmware = _firmwares(ctx, raw.get("vehicles"), len(missions))
-    plan = LaunchPlan(
+    fields: dict[str, Any] = dict(
         vehicles=len(missions),
         out=Path(str(raw.get("out", "runs/" + path.stem))),
         missions=tuple(missions),
@@ -268,11 +270,6 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         network=NetworkKind(model),
         network_params=dict(ctx.table(net.get("params", {}), "network.params")),
         stall_timeout_s=ctx.number(channel.get("stall_timeout_s", 30.0), "channel.stall_timeout_s", positive=True),
-        origin=(
-            ctx.number(world.get("lat_deg", 47.397742), "world.lat_deg", minimum=-90),
-            ctx.number(world.get("lon_deg", 8.545594), "world.lon_deg", minimum=-180),
-            ctx.number(world.get("alt_amsl_m", 488.0), "world.alt_amsl_m"),
-        ),
         wind_ned_m_s=(
             ctx.number(wind.get("north_m_s", 0.0), "wind.north_m_s"),
             ctx.number(wind.get("east_m_s", 0.0), "wind.east_m_s"),
@@ -290,8 +287,14 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         if "signing_key_file" in mav
         else None,
     )
-    fields = {k: v for k, v in overrides.items() if v is not None}
-    plan = _replace(plan, fields)
+    fields.update({k: v for k, v in overrides.items() if v is not None})
+    if world:  # what the file gives; the rest where vehicle 0's firmware's SITL starts
+        home = sitl_home(firmware_of(fields["firmware"], 0), os.environ)
+        fields["origin"] = tuple(
+            ctx.number(world.get(key, home[i]), f"world.{key}", minimum=lo)
+            for i, (key, lo) in enumerate((("lat_deg", -90), ("lon_deg", -180), ("alt_amsl_m", None)))
+        )
+    plan = LaunchPlan(**fields)
     check_plan(plan, f"{path}: ", _PLAN_NAMES)
     return plan
 
@@ -346,12 +349,12 @@ def _turbulence(ctx: _Ctx, value: Any) -> float:
 
 def _vehicles(
     ctx: _Ctx, raw: Any
-) -> tuple[list[MissionPlan | None], tuple[tuple[float, float, float], ...], list[dict[str, float]]]:
+) -> tuple[list[MissionPlan | None], tuple[tuple[float, float, float], ...] | None, list[dict[str, float]]]:
     if raw is None:
         raise ctx.fail("vehicles", "missing: give vehicles = N, a [vehicles] table with count, or [[vehicles]] entries")
     if isinstance(raw, bool | int):
         count = ctx.count(raw, "vehicles")
-        return [None] * count, _spawn_layout("grid", count, 5.0), [{}] * count
+        return [None] * count, None, [{}] * count
     if isinstance(raw, dict):
         ctx.keys(raw, _VEHICLES_TABLE, "vehicles.")
         count = ctx.count(raw.get("count", 1), "vehicles.count")
@@ -365,7 +368,8 @@ def _vehicles(
             raise ctx.fail("vehicles.spawn", f"must be one of {sorted(_SPAWNS)}, got {shown(layout)}")
         spacing = ctx.number(raw.get("spacing_m", 5.0), "vehicles.spacing_m", positive=True)
         shared = ctx.params(raw.get("params", {}), "vehicles.params")
-        return [mission] * count, _spawn_layout(layout, count, spacing), [shared] * count
+        given = "spawn" in raw or "spacing_m" in raw  # else: as the firmware's SITL spaces them
+        return [mission] * count, _spawn_layout(layout, count, spacing) if given else None, [shared] * count
     if isinstance(raw, list):
         if not raw:
             raise ctx.fail("vehicles", "the list is empty: a run needs at least one vehicle")
@@ -389,7 +393,8 @@ def _vehicles(
                 ctx.vec3(table["spawn_ned_m"], f"{where}.spawn_ned_m") if "spawn_ned_m" in table else defaults[i]
             )
             per_vehicle.append(ctx.params(table.get("params", {}), f"{where}.params"))
-        return missions, tuple(spawns), per_vehicle
+        given = any("spawn_ned_m" in t for t in raw if isinstance(t, dict))
+        return missions, tuple(spawns) if given else None, per_vehicle
     raise ctx.fail("vehicles", f"expected a count, a table or a list of tables, got {type(raw).__name__}")
 
 
@@ -404,9 +409,3 @@ def _firmwares(ctx: _Ctx, raw: Any, count: int) -> tuple[Firmware, ...]:
             if isinstance(t, dict)
         )
     return ()
-
-
-def _replace(plan: LaunchPlan, fields: dict[str, Any]) -> LaunchPlan:
-    import dataclasses
-
-    return dataclasses.replace(plan, **fields) if fields else plan

@@ -115,6 +115,8 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
     the name the user gave it (``{"tick_hz": "rates.tick_hz"}``), ``prefix`` names the file."""
     c = _Checker(prefix, names or {})
     n = plan.vehicles
+    if any("SIM_SPEEDUP" in p for p in plan.params):  # one pace for the run: ``speed`` (SIM_SPEEDUP shows it)
+        raise c.fail("params", "SIM_SPEEDUP is the run's pace: give it as speed (or --speed); it reads it")
     why = vehicle_count_error(n)
     if why is not None:
         raise c.fail("vehicles", why)
@@ -146,7 +148,7 @@ def check_plan(plan: LaunchPlan, prefix: str = "", names: Mapping[str, str] | No
         c.number(plan.pause_at_s, "pause_at_s", 0.0, MAX_DURATION_S)
     c.number(plan.pause_wall_s, "pause_wall_s", 0.0, MAX_WAIT_S, lo_open=True)
     for i, (field, lo, hi) in enumerate((("lat_deg", -90, 90), ("lon_deg", -180, 180), ("alt_amsl_m", -500, 10_000))):
-        c.number(plan.origin[i], field, lo, hi)
+        c.number(plan.world_origin[i], field, lo, hi)
     for i, axis in enumerate(("north_m_s", "east_m_s", "down_m_s")):
         c.number(plan.wind_ned_m_s[i], axis, -100.0, 100.0)
     c.number(plan.turbulence, "turbulence", 0.0, 30.0)

@@ -7,6 +7,7 @@ sits here, below both, so the scenario file model never imports the launcher.
 from __future__ import annotations
 
 import enum
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +18,7 @@ from harness.core.endpoints import PX4_API_BASE
 from harness.core.errors import ScenarioError
 from harness.fdm.sensors import GpsProfile
 from harness.net.model import NetworkKind
+from harness.scenario.sitl_defaults import sitl_heading_deg, sitl_home, sitl_spawns
 
 
 class AutopilotPlacement(enum.StrEnum):
@@ -65,7 +67,11 @@ class LaunchPlan:
     network: NetworkKind = NetworkKind.NONE
     network_params: dict[str, Any] = field(default_factory=dict)
     stall_timeout_s: float = 30.0
-    origin: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
+    origin: tuple[float, float, float] | None = None
+    """(lat, lon, alt AMSL) of the world; None: where vehicle 0's firmware's SITL starts (``sitl_defaults``: CMAC
+    for ArduPilot, PX4's home or ``PX4_HOME_LAT/LON/ALT`` for PX4). Always set once the plan is built."""
+    heading_deg: float | None = None
+    """The vehicles' heading at the start; None: their SITL's (ArduPilot 353, PX4 0)."""
     wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     turbulence: float = 0.0
     gps: GpsProfile = GpsProfile.PX4_SITL
@@ -73,6 +79,8 @@ class LaunchPlan:
     sensor_noise: bool = True
     """False: ideal sensors (rates and latency stay)."""
     spawn_ned_m: tuple[tuple[float, float, float], ...] | None = None
+    """Where each vehicle starts; None: as its SITL spaces several (ArduPilot: 10 m apart eastwards), PX4 on the
+    physics' grid."""
     params: tuple[dict[str, float], ...] = ()
     api_port_base: int = PX4_API_BASE
     """Vehicle ``i`` listens for its mission on UDP ``api_port_base + i`` (PX4 SITL's 14580 + i when free)."""
@@ -112,6 +120,19 @@ class LaunchPlan:
             except ValueError:
                 choices = ", ".join(repr(k.value) for k in kind)
                 raise ScenarioError(f"{name}: expected one of {choices}, got {value!r}") from None
+        first = self.firmware_of(0)
+        if self.origin is None:
+            object.__setattr__(self, "origin", sitl_home(first, os.environ))
+        if self.heading_deg is None:
+            object.__setattr__(self, "heading_deg", sitl_heading_deg(first))
+        if self.spawn_ned_m is None:
+            object.__setattr__(self, "spawn_ned_m", sitl_spawns(first, self.vehicles + self.remote_vehicles))
+
+    @property
+    def world_origin(self) -> tuple[float, float, float]:
+        """``origin``, resolved (never None once built)."""
+        assert self.origin is not None
+        return self.origin
 
     def firmware_of(self, vehicle: int) -> Firmware:
         return firmware_of(self.firmware, vehicle)

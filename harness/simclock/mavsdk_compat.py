@@ -142,10 +142,10 @@ def on_sim_clock() -> bool:
 
 def _shim_unavailable() -> bool:
     """In a run, the sim-clock shim for MAVSDK's core cannot be built here (no C compiler)."""
-    from harness.simclock import native
+    from harness.simclock import shim
     from harness.simclock.installed import current
 
-    return current() is not None and os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") != "wall" and native.build() is None
+    return current() is not None and os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") != "wall" and shim.build() is None
 
 
 def _patch_native(ep: VehicleEndpoints | None) -> None:

@@ -6,87 +6,29 @@ receive and thread it makes goes through its own GOT. :func:`attach` rewrites th
 ``simtime.c``, so that the library's timers, timeouts and waits follow sim time and its threads take part in
 the phase-0 idle decision of :class:`~harness.simclock.runtime.SimRuntime` (see ``docs/simclock.md``).
 
-The shared object is compiled with the machine's C compiler the first time it is needed (about 0.3 s) into
-the user's cache directory, keyed by the source's hash; a launcher builds it before it starts missions, so a
-run of a hundred missions compiles once. Without a C compiler the library keeps the wall clock: one warning
-says so, and everything else works as before.
+The shared object is compiled when the package is built (``setup.py``: it ships in the wheel beside
+``simtime.c``, named by the source's hash, ``simtime-<hash>.so``). Where a build has none (no C compiler when it
+was built, or ``simtime.c`` edited since), it is compiled with the machine's C compiler the first time it is
+needed (about 0.3 s) into the user's cache directory, keyed the same way; a launcher builds it before it starts
+missions, so a run of a hundred missions compiles once. Without either the library keeps the wall clock: one
+warning says so, and everything else works as before.
+
+Finding and compiling the shared object: :mod:`harness.simclock.shim`.
 """
 
 from __future__ import annotations
 
 import ctypes
-import fcntl
-import hashlib
 import logging
-import os
-import shutil
-import subprocess
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from harness.simclock.shim import build
+
 log = logging.getLogger(__name__)
 
-SOURCE = Path(__file__).with_name("simtime.c")
 NO_DEADLINE = (1 << 63) - 1
-_warned = False
-
-
-def cache_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "uav-harness"
-
-
-def compiler() -> str | None:
-    """The C compiler: ``$CC``, else ``cc``, ``gcc`` or ``clang`` on PATH."""
-    cc = os.environ.get("CC")
-    if cc and shutil.which(cc.split()[0]):
-        return cc
-    for name in ("cc", "gcc", "clang"):
-        if shutil.which(name):
-            return name
-    return None
-
-
-def library_path() -> Path:
-    digest = hashlib.sha256(SOURCE.read_bytes()).hexdigest()[:16]
-    return cache_dir() / f"simtime-{digest}.so"
-
-
-def build() -> Path | None:
-    """The compiled shim (building it if needed); None without a C compiler or when the build fails."""
-    global _warned
-    target = library_path()
-    if target.is_file():
-        return target
-    cc = compiler()
-    if cc is None:
-        if not _warned:
-            _warned = True
-            log.warning("no C compiler (cc, gcc or clang): MAVSDK's own threads stay on the wall clock")
-        return None
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with open(target.parent / ".simtime.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # a hundred missions may ask at once: one compiles
-        if target.is_file():
-            return target
-        fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
-        os.close(fd)
-        cmd = [*cc.split(), "-O2", "-shared", "-fPIC", "-o", tmp, str(SOURCE), "-lpthread"]
-        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        if proc.returncode != 0:
-            os.unlink(tmp)
-            if not _warned:
-                _warned = True
-                log.warning(
-                    "building %s failed (%s): MAVSDK's own threads stay on the wall clock",
-                    SOURCE.name,
-                    proc.stderr.strip().splitlines()[-1:] or proc.returncode,
-                )
-            return None
-        os.replace(tmp, target)
-    return target
 
 
 @dataclass(eq=False)

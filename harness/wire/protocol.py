@@ -20,7 +20,7 @@ Handshake (one round trip and a half, on every new connection)::
 
 ``auth`` is HMAC-SHA256(secret, nonce || name) when the channel requires a shared secret, else empty.
 
-One tick (see DESIGN.md, "The tick")::
+One tick (see docs/design.md, "The tick")::
 
     physics  -> channel   BEGIN-TICK-AC(t, vehicle, ...)  one per vehicle     (BeginTickAC)
     channel  -> autopilot BEGIN-TICK-AC                                        (forwarded)
@@ -188,6 +188,10 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
     since its previous END-TICK-AC that said, 0 when it sent none, :data:`MAVLINK_UNKNOWN` when it does not say
     (our autopilots say at the ticks with phases): until a vehicle has said, the channel wakes its mission at every
     phase if the mission waits for its vehicle's MAVLink (END-TICK-0 ``mavlink_wakes``).
+    ``events``: empty, or what the vehicle's autopilot tells the physics and the recordings
+    (``harness.autopilot.events``): changes of its simulated world (ArduPilot's ``SIM_*``), applied before the
+    physics step after ``t_ns`` by whoever steps the vehicle's physics (a host that does reports those it
+    applied), and its camera's pictures.
     """
 
     t_ns: int
@@ -196,6 +200,7 @@ class EndTickAC(_Msg, tag="ETA", frozen=True):
     status: int = 0
     ticks: bytes = b""
     mavlink: int = MAVLINK_UNKNOWN
+    events: bytes = b""
 
     def __post_init__(self) -> None:  # also on decoding: a malformed record is a malformed frame
         if len(self.ticks) % TICK_BYTES:

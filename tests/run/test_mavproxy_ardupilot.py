@@ -20,6 +20,8 @@ import pytest
 
 from harness.autopilot.mavlink.ardupilot.params import CopterParams
 from harness.autopilot.params import Params
+from harness.record.world import read_topics
+from harness.scenario.sitl_defaults import CMAC
 from tests.helpers import free_tcp_port
 
 from .flights import start_sitl
@@ -27,8 +29,8 @@ from .test_mavproxy import Console
 
 pytestmark = pytest.mark.sim
 
-ORIGIN = (47.397742, 8.545594, 488.0)
-"""``harness sitl``'s default world origin: vehicle 0 starts there."""
+ORIGIN = CMAC
+"""An ArduCopter vehicle 0's home: ArduPilot SITL's (``sitl_defaults``), where the mission file is."""
 
 
 def _mission_file(path: Path) -> None:
@@ -101,6 +103,10 @@ def test_mavproxy_flies_an_ardupilot_vehicle_with_its_own_commands(tmp_path: Pat
         con.send("rtl")
         con.expect(r"RTL>|Mode RTL", 15)
         con.expect(r"DISARMED", 120)  # RTL lands at home, then ArduCopter disarms
+        # SITL's simulated world, as sim_vehicle.py users change it (issue 34): the wind blows in the physics
+        con.send("param set SIM_WIND_DIR 270")
+        con.send("param set SIM_WIND_SPD 10")
+        con.until("param show SIM_WIND_SPD", r"SIM_WIND_SPD\s+10(\.0*)?$", 10)
     finally:
         if proxy is not None and proxy.poll() is None:
             proxy.kill()
@@ -118,3 +124,5 @@ def test_mavproxy_flies_an_ardupilot_vehicle_with_its_own_commands(tmp_path: Pat
     n, e, _ = v0["final_position_ned_m"]
     assert v0["landed"] and not v0["armed"] and abs(n) < 1.5 and abs(e) < 1.5
     assert v1["max_altitude_m"] < 0.5  # vehicle 2 was not commanded
+    winds = [e["detail"] for e in read_topics(tmp_path / "sitl" / "world.mcap")["/sim/events"] if e["kind"] == "sim"]
+    assert winds and winds[-1]["vehicle"] == 0 and winds[-1]["wind_ned_m_s"][1] == pytest.approx(10.0), winds

@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 
 from harness.pytest_plugin import RunRecord, VehicleRecord, run_harness
-from harness.simclock import native
+from harness.simclock import shim
 from tests.run.flights import MISSIONS
 
 pytestmark = pytest.mark.sim
 needs_shim = pytest.mark.skipif(
-    native.compiler() is None,
+    shim.compiler() is None,
     reason="no C compiler: MAVSDK's threads cannot be put on the sim clock (simtime.c), they keep the wall clock",
 )
 

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from harness.simclock import native
+from harness.simclock import native, shim
 
-pytestmark = pytest.mark.skipif(native.compiler() is None, reason="no C compiler")
+pytestmark = pytest.mark.skipif(shim.compiler() is None, reason="no C compiler")
 
 MS = 1_000_000
 S = 1_000_000_000
@@ -94,7 +94,7 @@ def lib(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ctypes.CDLL,
     d = tmp_path_factory.mktemp("simtime")
     src, so = d / "libsimtest.c", d / "libsimtest.so"
     src.write_text(LIB)
-    cc = native.compiler()
+    cc = shim.compiler()
     assert cc is not None
     subprocess.run([*cc.split(), "-O1", "-shared", "-fPIC", "-o", str(so), str(src), "-lpthread"], check=True)
     test_lib = ctypes.CDLL(str(so))
@@ -262,16 +262,17 @@ def test_without_a_compiler_the_library_keeps_the_wall_clock(
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))  # nothing built yet there
     monkeypatch.setenv("PATH", str(tmp_path))
     monkeypatch.delenv("CC", raising=False)
-    monkeypatch.setattr(native, "_warned", False)
+    monkeypatch.setattr(shim, "_warned", False)
+    monkeypatch.setattr(shim, "packaged_path", lambda: tmp_path / "not-built.so")  # a package built without one
     assert shutil.which("cc") is None
-    assert native.build() is None
-    assert native.build() is None
+    assert shim.build() is None
+    assert shim.build() is None
     warnings = [r.message for r in caplog.records if "no C compiler" in r.message]
     assert warnings == ["no C compiler (cc, gcc or clang): MAVSDK's own threads stay on the wall clock"]
 
 
 def test_many_processes_build_it_once_into_an_empty_cache(tmp_path: Path) -> None:
-    code = "from harness.simclock import native; print(native.build())"
+    code = "from harness.simclock import shim; print(shim.cached())"
     env = {"XDG_CACHE_HOME": str(tmp_path)}
     procs = [
         subprocess.Popen([sys.executable, "-c", code], env={**os.environ, **env}, stdout=subprocess.PIPE, text=True)

@@ -1,4 +1,4 @@
-"""The autopilot's PX4-dialect MAVLink interface (see docs/mavlink.md and /shared/MAVLINK.md).
+"""The autopilot's PX4-dialect MAVLink interface (see docs/mavlink.md).
 
 Layers: ``codec`` (frames, signing) -> ``transport`` (UDP links, peers) -> services (``heartbeat``,
 ``telemetry``, ``commands``, ``parameters``, ``mission``, ``offboard``) -> ``server`` (the wall-clock thread).

@@ -32,6 +32,20 @@ class DialectHost(Protocol):
     def link_name(self, link: int) -> str: ...
 
 
+class Component(Protocol):
+    """A MAVLink component of the vehicle's system beside the autopilot: what is addressed to ``compid`` is its
+    (``handle_component``); it sends as ``compid`` (``Out.compid``), with an encoder of its own."""
+
+    compid: int
+
+    def bind_component(self, mav: mavlink2.MAVLink) -> None: ...
+    def heartbeat(self) -> MAVLinkMessage | None:
+        """Its HEARTBEAT (sent with the autopilot's), or None for a component without one."""
+        ...
+
+    def handle_component(self, m: MAVLinkMessage, origin: Origin) -> list[Out]: ...
+
+
 class Dialect(Protocol):
     api: System
     mission_float_form: bool
@@ -40,6 +54,8 @@ class Dialect(Protocol):
     stream_defaults: Mapping[int, int]
     own_params: Params | None
     """The dialect's own parameter table, stored per vehicle beside the core's (ArduCopter's names), or None."""
+    components: Mapping[int, Component]
+    """The vehicle's other MAVLink components by id (PX4: the camera, 100; the winch, 169)."""
 
     def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None: ...
     def check_mission_item(self, m: MAVLinkMessage) -> tuple[int, str]:

@@ -36,6 +36,8 @@ class Out:
     to: Origin | None = None
     wall_clock: bool = False
     """Sent only because wall time passed (the sim is slow or paused): not for peers that live on sim time."""
+    compid: int = 0
+    """Sent as this component of the vehicle's system (0: the autopilot's; the camera's is 100)."""
 
 
 def clamp_int(value: float, lo: int, hi: int, default: int = 0) -> int:

@@ -28,7 +28,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from harness.autopilot.api import VehicleState
 from harness.autopilot.firmware import Firmware
 from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
-from harness.autopilot.mavlink.dialect_api import Dialect, DialectHost
+from harness.autopilot.mavlink.dialect_api import Component, Dialect, DialectHost
 from harness.autopilot.mavlink.heartbeat import heartbeat_message
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.mission_items import px4_item_result
@@ -49,6 +49,7 @@ class Px4Dialect:
     def __init__(self, api: System, sysid: int = 1) -> None:
         self.api = api
         self.px4 = Px4Services(api, sysid)
+        self.components: Mapping[int, Component] = self.px4.components
         self.builders: Mapping[int, Builder] = self.px4.builders
         self.stream_defaults: Mapping[int, int] = {**DEFAULT_INTERVALS_NS, **self.px4.stream_defaults}
 

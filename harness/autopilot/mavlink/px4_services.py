@@ -15,9 +15,12 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import VehicleState
 from harness.autopilot.mavlink.calibration import CalibrationService
+from harness.autopilot.mavlink.camera import CameraComponent
+from harness.autopilot.mavlink.dialect_api import Component
 from harness.autopilot.mavlink.ftp import FtpService
 from harness.autopilot.mavlink.gimbal import CMD_CONFIGURE, GimbalService
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
+from harness.autopilot.mavlink.payload import WinchComponent
 from harness.autopilot.mavlink.reboot import RebootService
 from harness.autopilot.mavlink.service import CommandHandler, Service
 from harness.autopilot.mavlink.shell import ShellService
@@ -34,9 +37,13 @@ class Px4Services:
         self.gimbal = GimbalService(api, api.gimbal, sysid) if api.gimbal is not None else None
         self.ftp = FtpService(api, vehicle)
         self.reboot = RebootService(api, vehicle)
+        self.camera = CameraComponent(api.camera, api.telemetry.state) if api.camera is not None else None
+        self.winch = WinchComponent()
+        self.components: dict[int, Component] = {c.compid: c for c in (self.camera, self.winch) if c is not None}
+        """The vehicle's other components (the server frames what they send with their own ids)."""
         self.shell = ShellService(api, self.reboot.reboot, self.gimbal.attitude_deg if self.gimbal else None)
         self.services: tuple[Service, ...] = tuple(
-            s for s in (self.calibration, self.gimbal, self.ftp, self.shell, self.reboot) if s is not None
+            s for s in (self.calibration, self.gimbal, self.ftp, self.shell, self.reboot, self.camera) if s is not None
         )
         self._by_message: dict[int, Service] = {}
         self.builders: dict[int, Builder] = {}
@@ -65,6 +72,8 @@ class Px4Services:
         if mid in _COMMAND_IDS:
             if m.command == CMD_CONFIGURE and self.gimbal is not None:  # who takes gimbal control: the sender
                 self.gimbal.sender = (origin.sysid, origin.compid)
+            if self.camera is not None:
+                self.camera.looked_for(m)
             return None
         service = self._by_message.get(mid)
         return None if service is None else service.handle(m, origin, now)

@@ -160,6 +160,12 @@ class MavlinkServer:
         """True while the autopilot's stepping thread services this server (the bell), at sim time."""
         self.codec = Codec(self.sysid, self.compid, signing, clock.unix_ns)
         mav = self.codec.mav
+        self.components = dict(self.dialect.components)
+        """The vehicle's other components (PX4: camera 100, winch 169), each framed by an encoder of its own."""
+        self._component_codecs: dict[int, Codec] = {}
+        for cid, component in self.components.items():
+            self._component_codecs[cid] = Codec(self.sysid, cid, signing, clock.unix_ns)
+            component.bind_component(self._component_codecs[cid].mav)
         self.links: list[Link] = [UdpLink(cfg) for cfg in self.ports.links(vehicle)]
         tcp = self.ports.tcp_local(vehicle)
         if tcp is not None:
@@ -481,7 +487,13 @@ class MavlinkServer:
         return ts in (0, self.sysid) and tc in (0, self.compid)
 
     def _dispatch_dialect(self, m: MAVLinkMessage, origin: Origin, now: int) -> None:
-        """The firmware's own handling first (messages addressed to us), then the generic services."""
+        """The firmware's own handling first (messages addressed to us), then the generic services; what is
+        addressed to another component of the vehicle (the camera, the winch) goes to it."""
+        component = self.components.get(getattr(m, "target_component", -1)) if self.components else None
+        if component is not None:
+            if getattr(m, "target_system", 0) in (0, self.sysid):
+                self._send_all(component.handle_component(m, origin), now)
+            return
         if m.get_msgId() != _M.MAVLINK_MSG_ID_HEARTBEAT and self._for_us(m):
             outs = self.dialect.handle(m, origin, now)
             if outs is not None:
@@ -594,6 +606,10 @@ class MavlinkServer:
         sim_peers = self._sim_peers()
         if self.heartbeat.due(now, state, sim_peers):
             outs.append(Out(self.dialect.heartbeat(mav, state), wall_clock=self.heartbeat.by_wall))
+            for cid, component in self.components.items():
+                hb = component.heartbeat()
+                if hb is not None:
+                    outs.append(Out(hb, wall_clock=self.heartbeat.by_wall, compid=cid))
         t_ms = self._boot_ms()
         for msg_id, by_wall in self.streams.due_by_clock(now, self._t_ns, sim_peers):
             msg = self.builders[msg_id](mav, state, t_ms)
@@ -682,7 +698,7 @@ class MavlinkServer:
             self._count("frames_tx", sent)
 
     def _encode(self, out: Out) -> bytes:
-        data = self.codec.encode(out.msg)
+        data = (self.codec if not out.compid else self._component_codecs[out.compid]).encode(out.msg)
         if self._tap is not None:
             self._tap(data)
         return data

@@ -50,7 +50,7 @@ class LinkConfig:
 
 @dataclass(frozen=True, slots=True)
 class PortsConfig:
-    """Port plan (DESIGN.md): vehicle ``i`` sends to ``api_port_base + i`` and to ``gcs_port``.
+    """Port plan (docs/design.md, "Ports"): vehicle ``i`` sends to ``api_port_base + i`` and to ``gcs_port``.
 
     ``api_port_base = 0``: the API link sends only to the peers that spoke to it (``harness run``: each
     mission connects out to its own vehicle, and no other run's listener can hear it).

@@ -24,7 +24,7 @@ CAPABILITIES = (
 )
 
 FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255
-"""Reported as PX4 1.15.0 release: the PX4 behaviour MAVLINK.md describes."""
+"""Reported as PX4 1.15.0 release: the PX4 behaviour docs/mavlink.md describes."""
 
 _CUSTOM_VERSION = [0] * 8
 """PX4 puts its git hash here; we have none to give."""

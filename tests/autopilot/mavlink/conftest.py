@@ -69,12 +69,15 @@ class Gcs:
     def recv(
         self, kind: str | tuple[str, ...], timeout_s: float = 3.0, cond: Callable[[Msg], bool] | None = None
     ) -> Msg:
-        """The next message of type ``kind`` (one of them, for a tuple) and ``cond``; earlier others are dropped."""
+        """The next message of type ``kind`` (one of them, for a tuple) and ``cond``; earlier others are dropped. A
+        HEARTBEAT is the autopilot's (component 1): a PX4 vehicle's camera (component 100) sends its own."""
         kinds = (kind,) if isinstance(kind, str) else kind
         deadline = real_monotonic_ns() + int(timeout_s * 1e9)
         while real_monotonic_ns() < deadline:
             for m in self._read(deadline):
                 if m.get_type() in kinds and (cond is None or cond(m)):
+                    if m.get_type() == "HEARTBEAT" and m.get_srcComponent() != 1:
+                        continue
                     return m
         raise AssertionError(f"no {kind} within {timeout_s} s")
 

@@ -54,7 +54,7 @@ class HeartbeatWatch:
                 c = self.client
                 c.send(c.mav.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
             for _, m in self.client.collect(0.1, {"HEARTBEAT"}):
-                if m.get_srcSystem() == 1:
+                if (m.get_srcSystem(), m.get_srcComponent()) == (1, 1):  # the autopilot's, not a camera's
                     self.times.append(time.monotonic())
 
     def stop(self) -> float:

@@ -305,7 +305,7 @@ def test_a_vehicles_traffic_is_all_packed_and_is_pymavlinks_encoding() -> None:
     mismatched = []
     for m in sent:
         frame = bytes(m.get_msgbuf())
-        ref = common.MAVLink(None, srcSystem=1, srcComponent=1)
+        ref = common.MAVLink(None, srcSystem=1, srcComponent=m.get_srcComponent())  # (the camera's heartbeat: 100)
         ref.seq = m.get_seq()
         if m.pack(ref) != frame:
             mismatched.append(m.get_type())

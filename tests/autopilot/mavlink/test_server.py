@@ -304,7 +304,7 @@ def test_frames_of_one_instant_share_a_datagram_in_order(gcs: Gcs, idle_rig: Rig
         assert len(data) <= DATAGRAM_MAX
         frames = [m for m in parser.parse_buffer(data) or [] if not isinstance(m, mavlink2.MAVLink_bad_data)]
         per_datagram.append([m.get_type() for m in frames])
-        seqs += [m.get_seq() for m in frames if m.get_srcSystem() == 1]
+        seqs += [m.get_seq() for m in frames if m.get_srcSystem() == 1 and m.get_srcComponent() == 1]  # (per component)
     assert max(len(kinds) for kinds in per_datagram) >= 4, per_datagram[:10]
     together = [kinds for kinds in per_datagram if "GLOBAL_POSITION_INT" in kinds]
     assert together and all("ATTITUDE" in kinds for kinds in together), together[:5]

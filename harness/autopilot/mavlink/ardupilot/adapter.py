@@ -5,7 +5,7 @@
   from 0 for the core; current item, MISSION_SET_CURRENT and MISSION_ITEM_REACHED are shifted by one.
 - Parameters: ArduCopter names (:class:`~harness.autopilot.mavlink.ardupilot.params.CopterParams`).
 - Status texts: the core's arming refusals become ArduPilot's ``PreArm: ...``, reached items
-  ``Reached command #N``.
+  ``Reached command #N``, the navigation-loss failsafe ``EKF variance``.
 
 Every other service is the core's own object (no forwarding).
 """
@@ -26,6 +26,7 @@ from harness.autopilot.api import (
     StatusText,
     VehicleState,
 )
+from harness.autopilot.camera import CameraDevice
 from harness.autopilot.mavlink.ardupilot.params import CopterParams
 from harness.autopilot.services import (
     Action,
@@ -41,6 +42,7 @@ from harness.autopilot.services import (
 )
 
 _ARMING_DENIED = "Arming denied: "
+_NAV_LOSS = "Failsafe: no position estimate"
 
 
 def home_item(home: GeoPoint | None) -> MissionItem:
@@ -65,6 +67,8 @@ def copter_text(text: StatusText) -> StatusText:
         seq = t[len("Mission item ") : -len(" reached")]
         if seq.isdigit():
             t = f"Reached command #{int(seq) + 1}"
+    elif t.startswith(_NAV_LOSS):
+        t = "EKF variance"  # ArduCopter's ekf_check, before its EKF failsafe (FS_EKF_ACTION 1: LAND)
     return text if t == text.text else dataclasses.replace(text, text=t)
 
 
@@ -153,5 +157,6 @@ class CopterSystem:
         self.follow_me: FollowMe | None = core.follow_me
         self.gripper: Gripper | None = core.gripper
         self.gimbal: Gimbal | None = None
+        self.camera: CameraDevice | None = None  # ArduPilot SITL's camera is not presented (PX4's is)
         self.log_files: LogFiles | None = core.log_files
         self.bell: Bell | None = core.bell

@@ -1,7 +1,7 @@
 """The ArduCopter personality: identity, modes, commands and streams of ArduCopter over the flight core.
 
-What DroneKit, MAVProxy and pymavlink scripts written for ArduPilot rely on (facts in /shared/MAVLINK.md,
-"The ArduCopter dialect"):
+What DroneKit, MAVProxy and pymavlink scripts written for ArduPilot rely on (facts in docs/mavlink.md,
+"What clients expect", the ArduCopter dialect):
 
 - HEARTBEAT autopilot ARDUPILOTMEGA, custom_mode = the ArduCopter mode number (:mod:`.modes`); DO_SET_MODE
   (param2 = mode number) and SET_MODE; unsupported modes refused with a reason.
@@ -66,7 +66,7 @@ from harness.autopilot.mavlink.ardupilot.streams import (
     rc_builders,
 )
 from harness.autopilot.mavlink.commands import FORCE_MAGIC, CommandIn, CommandOutcome
-from harness.autopilot.mavlink.dialect_api import DialectHost
+from harness.autopilot.mavlink.dialect_api import Component, DialectHost
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, is_set
 from harness.autopilot.mavlink.mission_items import ardupilot_item_result
 from harness.autopilot.mavlink.telemetry import SENSOR_GEOFENCE, Builder, sys_status
@@ -114,6 +114,7 @@ class CopterDialect:
 
     mission_float_form = True
     param_bytewise = False
+    components: Mapping[int, Component] = {}
 
     def __init__(self, core: System, sysid: int) -> None:
         self._core = core

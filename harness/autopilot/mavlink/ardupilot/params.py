@@ -17,9 +17,10 @@ import math
 from dataclasses import dataclass
 
 from harness.autopilot.api import CommandResult
-from harness.autopilot.mavlink.ardupilot.copter_table import TABLE
 from harness.autopilot.param_table import ParamTable, parse_param_table
-from harness.autopilot.params import ParamDef, Params, ParamType
+from harness.autopilot.params import FLOWN_DEFS, ParamDef, Params, ParamType
+from harness.autopilot.params_data import copter_text
+from harness.autopilot.simworld import NAMES as SIM_NAMES
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,8 @@ MAPPED: tuple[Mapped, ...] = (
     Mapped("ATC_RAT_RLL_P", "MC_ROLLRATE_P", 1.0),
     Mapped("ATC_RAT_PIT_P", "MC_PITCHRATE_P", 1.0),
     Mapped("ATC_RAT_YAW_P", "MC_YAWRATE_P", 1.0),
+    # ArduPilot SITL's simulated world: the core's own SIM_* under the same names (harness/autopilot/simworld.py)
+    *(Mapped(d.name, d.name, 1.0, d.type, d.unit) for d in FLOWN_DEFS if d.name in SIM_NAMES),
 )
 
 CORE_DEFAULTS: dict[str, float] = {
@@ -146,7 +149,7 @@ _INT32 = (-2147483648.0, 2147483647.0)
 
 def copter_table() -> ParamTable:
     """ArduCopter's parameter table (read once per process)."""
-    return parse_param_table(TABLE, "ArduCopter's parameter table")
+    return parse_param_table(copter_text(), "ArduCopter's parameter table (params_data/copter_params.tsv)")
 
 
 def stored_value(ptype: ParamType, value: float) -> float:

@@ -1,6 +1,6 @@
 """Write ``px4_params.json`` from QGroundControl's ``src/FirmwarePlugin/PX4/PX4ParameterFactMetaData.xml``.
 
-    python -m harness.autopilot.params_data.generate PX4ParameterFactMetaData.xml --source "QGC commit ..."
+    python3 tools/gen_px4_params.py PX4ParameterFactMetaData.xml --source "QGC commit ..."
 
 Only data is taken: name, type, default, min, max, unit, reboot_required; never the descriptions. Groups
 marked ``no_code_generation`` (UAVCAN node settings with lower-case names, not PX4 parameters) are left out.
@@ -88,7 +88,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("xml", type=Path)
     ap.add_argument("--source", required=True, help="where the XML came from (repository, commit, date)")
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("px4_params.json"))
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=Path(__file__).resolve().parents[1] / "harness/autopilot/params_data/px4_params.json",
+    )
     a = ap.parse_args()
     table = rows(a.xml.read_text(encoding="utf-8"))
     lines = ",\n".join("  " + json.dumps(r, ensure_ascii=False) for r in table)
