@@ -21,6 +21,7 @@ from harness.cli_run import (
     cmd_join,
     cmd_plot,
     cmd_sweep,
+    ignore_stop_signals_after_the_run,
     progress_printer,
     terminate_as_interrupt,
     tree_options,
@@ -29,6 +30,7 @@ from harness.core import lifeline
 from harness.core.endpoints import GCS_PORT
 from harness.core.errors import HarnessError, ScenarioError
 from harness.core.files import script_file
+from harness.core.limits import ERROR_CHARS, cut
 
 if TYPE_CHECKING:
     from harness.record.viewer import NativeViewer
@@ -300,6 +302,8 @@ def _run_plan(a: argparse.Namespace, plan: LaunchPlan, natives: list[NativeViewe
         print(f"3D view: harness view {plan.out}")
     elif not rerun_available():
         print(f"3D view: not recorded ({INSTALL_HINT})")
+    if natives:
+        terminate_as_interrupt()  # re-armed: a Ctrl-C that stopped the run is spent, the next closes the viewer
     for viewer in natives:
         print("the viewer stays open until you close it (Ctrl-C closes it too)", flush=True)
         try:
@@ -632,8 +636,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(a.func(a, unknown + script_args))
     except HarnessError as exc:
-        print(f"harness: {exc}", file=sys.stderr)
+        print(f"harness: {cut(str(exc), ERROR_CHARS)}", file=sys.stderr)  # one line, however long its values
         return 2
+    finally:
+        ignore_stop_signals_after_the_run()
 
 
 if __name__ == "__main__":

@@ -140,13 +140,33 @@ def cmd_join(a: argparse.Namespace, rest: list[str]) -> int:
 
 def terminate_as_interrupt() -> None:
     """SIGINT and SIGTERM (Ctrl-C, a CI timeout, a supervisor) end a run cleanly: children stopped, summary
-    written (saying which signal) — also when the shell started us in the background with SIGINT ignored."""
+    written (saying which signal) — also when the shell started us in the background with SIGINT ignored.
+    The first one stops the run; more while it stops are that same stop (calling this again re-arms it)."""
+
+    stopping = False
 
     def handler(signum: int, frame: object) -> None:
+        nonlocal stopping
+        if stopping:  # a second Ctrl-C while the first one stops the run: the same stop, not a traceback
+            return  # from the middle of the clean-up (which would leave the summary unwritten)
+        stopping = True
         raise StopSignal(signum)
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    _STOP_HANDLERS.add(handler)
+
+
+_STOP_HANDLERS: set[Callable[[int, object], None]] = set()
+
+
+def ignore_stop_signals_after_the_run() -> None:
+    """The command is done (its run cleaned up, its summary written): a Ctrl-C while the interpreter exits is
+    ignored. Without this, Python's exit puts SIGINT back to its default before native libraries flush (a
+    second or two), and a second Ctrl-C in that window killed the process (exit -2 instead of the first's 0)."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(signum) in _STOP_HANDLERS:
+            signal.signal(signum, signal.SIG_IGN)
 
 
 def sweep_bar() -> Callable[[SweepProgress], None]:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from harness.autopilot.api import CommandResult
 from harness.autopilot.params_data import load as px4_metadata
 from harness.core.errors import ScenarioError
+from harness.core.limits import shown
 
 
 class ParamType(enum.IntEnum):
@@ -306,11 +307,14 @@ class Params:
         """Set a value; refuses unknown names, NaN/inf, non-integers for INT32 and values out of range."""
         i = self._index.get(name)
         if i is None:
-            return CommandResult.denied(f"unknown parameter {name!r}")
+            return CommandResult.denied(f"unknown parameter {shown(name)}")
         d = self._defs[i]
-        v = float(value)
+        try:
+            v = float(value)
+        except (OverflowError, TypeError, ValueError):
+            v = math.nan
         if not math.isfinite(v):
-            return CommandResult.denied(f"{name}: value {value} is not finite")
+            return CommandResult.denied(f"{name}: value {shown(value)} is not finite")
         if d.type == ParamType.INT32 and v != int(v):
             return CommandResult.denied(f"{name} is an integer parameter, got {value}")
         if not d.min <= v <= d.max:

@@ -87,10 +87,13 @@ def free_bytes(directory: Path) -> int:
     return st.f_bavail * st.f_frsize
 
 
-def read_text(path: Path, what: str) -> str:
+def read_text(path: Path, what: str, max_bytes: int | None = None) -> str:
     """The text of an input file, or one line saying why it cannot be used (``what``: how the user named it,
-    e.g. ``scenario file``, ``--mission``)."""
+    e.g. ``scenario file``, ``--mission``; ``max_bytes``: larger is refused unread)."""
     try:
+        size = path.stat().st_size if max_bytes is not None else 0
+        if max_bytes is not None and size > max_bytes:
+            raise ScenarioError(f"{what} {path}: {size:,} bytes, more than the {max_bytes:,} it may have") from None
         data = path.read_bytes()
     except FileNotFoundError:
         raise ScenarioError(f"{what} {path}: the file does not exist") from None

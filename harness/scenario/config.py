@@ -22,6 +22,7 @@ from typing import Any
 from harness.autopilot.firmware import Firmware, firmware_of
 from harness.core.errors import ScenarioError
 from harness.core.files import read_text, script_file
+from harness.core.limits import cut, depth, shown
 from harness.fdm.sensors import GPS_PROFILES, GpsProfile, gps_profile_names
 from harness.net.model import NetworkKind
 from harness.scenario.limits import check_plan, vehicle_count_error
@@ -53,6 +54,10 @@ _SECTIONS: dict[str, set[str]] = {
     "mavlink": {"api_port_base", "gcs_port", "signing_key_file"},
     "swarm": {"mission", "args"},
 }
+MAX_SCENARIO_BYTES = 1 << 20
+"""A scenario file is a few kB; one of more than a MiB is refused before it is parsed."""
+MAX_DEPTH = 16
+"""Tables and arrays nest at most this deep (``vehicles[1].params`` is 3)."""
 _VEHICLES_TABLE = {"count", "mission", "args", "spawn", "spacing_m", "params", "firmware"}
 _VEHICLE = {"mission", "args", "spawn_ned_m", "params", "firmware"}
 _SPAWNS = {"grid", "line", "circle"}
@@ -63,7 +68,8 @@ class _Ctx:
         self.path = path
 
     def fail(self, field: str, why: str) -> ScenarioError:
-        return ScenarioError(f"{self.path}: {field}: {why}")
+        """The error, one line: what the user wrote appears cut (``limits.cut``), however long it was."""
+        return ScenarioError(f"{self.path}: {cut(field)}: {why}")
 
     def keys(self, table: Mapping[str, Any], allowed: set[str], where: str) -> None:
         for key in table:
@@ -74,21 +80,21 @@ class _Ctx:
 
     def number(self, value: Any, field: str, *, positive: bool = False, minimum: float | None = None) -> float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.fail(field, f"expected a number, got {type(value).__name__} {value!r}")
+            raise self.fail(field, f"expected a number, got {type(value).__name__} {shown(value)}")
         x = float(value)
         if not math.isfinite(x):
-            raise self.fail(field, f"must be finite, got {value!r}")
+            raise self.fail(field, f"must be finite, got {shown(value)}")
         if positive and not x > 0:
-            raise self.fail(field, f"must be > 0, got {value!r}")
+            raise self.fail(field, f"must be > 0, got {shown(value)}")
         if minimum is not None and x < minimum:
-            raise self.fail(field, f"must be >= {minimum:g}, got {value!r}")
+            raise self.fail(field, f"must be >= {minimum:g}, got {shown(value)}")
         return x
 
     def integer(self, value: Any, field: str, *, minimum: int | None = None) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(field, f"expected an integer, got {type(value).__name__} {value!r}")
+            raise self.fail(field, f"expected an integer, got {type(value).__name__} {shown(value)}")
         if minimum is not None and value < minimum:
-            raise self.fail(field, f"must be >= {minimum}, got {value}")
+            raise self.fail(field, f"must be >= {minimum}, got {shown(value)}")
         return value
 
     def count(self, value: Any, field: str) -> int:
@@ -106,10 +112,10 @@ class _Ctx:
 
     def mission(self, value: Any, field: str) -> Path:
         if not isinstance(value, str) or not value:
-            raise self.fail(field, f"expected the path of a script, got {value!r}")
+            raise self.fail(field, f"expected the path of a script, got {shown(value)}")
         path = (self.path.parent / value).resolve()
         if not path.exists():
-            raise self.fail(field, f"file {value} does not exist (looked in {path.parent})")
+            raise self.fail(field, f"file {cut(value)} does not exist (looked in {cut(str(path.parent))})")
         try:
             return script_file(path, "the script")
         except ScenarioError as exc:
@@ -118,12 +124,12 @@ class _Ctx:
     def file_path(self, value: Any, field: str) -> Path:
         """A path given in the file, relative to the file's directory."""
         if not isinstance(value, str) or not value:
-            raise self.fail(field, f"expected a path, got {value!r}")
+            raise self.fail(field, f"expected a path, got {shown(value)}")
         return (self.path.parent / value).resolve()
 
     def args(self, value: Any, field: str) -> tuple[str, ...]:
         if not isinstance(value, list) or not all(isinstance(a, str | int | float) for a in value):
-            raise self.fail(field, f"expected a list of strings, got {value!r}")
+            raise self.fail(field, f"expected a list of strings, got {shown(value)}")
         return tuple(str(a) for a in value)
 
     def params(self, value: Any, field: str) -> dict[str, float]:
@@ -132,7 +138,7 @@ class _Ctx:
 
     def vec3(self, value: Any, field: str) -> tuple[float, float, float]:
         if not isinstance(value, list) or len(value) != 3:
-            raise self.fail(field, f"expected [north, east, down] in metres, got {value!r}")
+            raise self.fail(field, f"expected [north, east, down] in metres, got {shown(value)}")
         n, e, d = (self.number(v, f"{field}[{i}]") for i, v in enumerate(value))
         return (n, e, d)
 
@@ -171,7 +177,7 @@ def set_path(raw: dict[str, Any], dotted: str, value: Any) -> None:
     for n, part in enumerate(parts):
         m = _SEGMENT.match(part)
         if m is None:
-            raise ScenarioError(f"--set {dotted}: {part!r} is not a key (expected name or name[index])")
+            raise ScenarioError(f"--set {dotted}: {shown(part)} is not a key (expected name or name[index])")
         key, index = m.group(1), m.group(2)
         walked = f"{walked}.{key}" if walked else key
         last = n == len(parts) - 1
@@ -199,11 +205,15 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
     before validation (``--set``), ``overrides`` (from the command line) win over the file."""
     path = Path(path)
     ctx = _Ctx(path)
-    text = read_text(path, "scenario file")
+    text = read_text(path, "scenario file", max_bytes=MAX_SCENARIO_BYTES)
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+        raise ScenarioError(f"{path}: not valid TOML: {cut(str(exc), 200)}") from None
+    except RecursionError:  # tomllib recurses per level of nesting
+        raise ScenarioError(f"{path}: nested deeper than {MAX_DEPTH} levels (a scenario nests 3 or 4)") from None
+    if depth(raw, MAX_DEPTH) > MAX_DEPTH:
+        raise ScenarioError(f"{path}: nested deeper than {MAX_DEPTH} levels (a scenario nests 3 or 4)")
     if sets:
         raw = copy.deepcopy(raw)
         for dotted, value in sets:
@@ -238,7 +248,7 @@ def load_scenario(path: str | Path, sets: Sequence[tuple[str, Any]] = (), **over
         )
     model = net.get("model", "none")
     if model not in set(NetworkKind):
-        raise ctx.fail("network.model", f"must be 'builtin', 'ns3' or 'none', got {model!r}")
+        raise ctx.fail("network.model", f"must be 'builtin', 'ns3' or 'none', got {shown(model)}")
 
     missions, spawns, params = _vehicles(ctx, raw.get("vehicles"))
     firmware = _firmwares(ctx, raw.get("vehicles"), len(missions))
@@ -315,13 +325,13 @@ _PLAN_NAMES = {
 
 def _gps_profile(ctx: _Ctx, value: Any) -> GpsProfile:
     if value not in GPS_PROFILES:
-        raise ctx.fail("sensors.gps", f"expected one of {gps_profile_names()}, got {value!r}")
+        raise ctx.fail("sensors.gps", f"expected one of {gps_profile_names()}, got {shown(value)}")
     return GpsProfile(value)
 
 
 def _boolean(ctx: _Ctx, value: Any, field: str) -> bool:
     if not isinstance(value, bool):
-        raise ctx.fail(field, f"expected true or false, got {type(value).__name__} {value!r}")
+        raise ctx.fail(field, f"expected true or false, got {type(value).__name__} {shown(value)}")
     return value
 
 
@@ -330,7 +340,9 @@ def _turbulence(ctx: _Ctx, value: Any) -> float:
 
     if isinstance(value, str):
         if value not in TURBULENCE_LEVELS:
-            raise ctx.fail("wind.turbulence", f"expected a number or one of {sorted(TURBULENCE_LEVELS)}, got {value!r}")
+            raise ctx.fail(
+                "wind.turbulence", f"expected a number or one of {sorted(TURBULENCE_LEVELS)}, got {shown(value)}"
+            )
         return TURBULENCE_LEVELS[value]
     return ctx.number(value, "wind.turbulence", minimum=0)
 
@@ -353,7 +365,7 @@ def _vehicles(
         )
         layout = raw.get("spawn", "grid")
         if layout not in _SPAWNS:
-            raise ctx.fail("vehicles.spawn", f"must be one of {sorted(_SPAWNS)}, got {layout!r}")
+            raise ctx.fail("vehicles.spawn", f"must be one of {sorted(_SPAWNS)}, got {shown(layout)}")
         spacing = ctx.number(raw.get("spacing_m", 5.0), "vehicles.spacing_m", positive=True)
         shared = ctx.params(raw.get("params", {}), "vehicles.params")
         given = "spawn" in raw or "spacing_m" in raw  # else: as the firmware's SITL spaces them

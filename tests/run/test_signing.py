@@ -9,13 +9,17 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
 
+from harness.autopilot.mavlink import SigningConfig
 from harness.autopilot.mavlink.runlocal import RunLocalPeers, descendants
 from harness.record.status import read_summary
+from tests.autopilot.mavlink.conftest import Gcs, Rig
 from tests.helpers import free_tcp_port
 
 from .flights import start_sitl_ports
@@ -210,6 +214,98 @@ def test_missions_of_the_run_fly_unsigned_and_no_secret_is_in_any_argv(
     assert summary["vehicles"][0]["max_altitude_m"] > 2.0 and summary["vehicles"][0]["landed"]
 
 
+MISSION_SOCKET = """
+import socket, sys
+from pymavlink.dialects.v20 import common as m
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+s.bind(("127.0.0.1", 0))
+print(s.getsockname()[1], flush=True)
+mav = m.MAVLink(None, 250, 190)
+vehicle = ("127.0.0.1", int(sys.argv[1]))
+s.settimeout(3.0)
+for line in sys.stdin:  # one unsigned ARM per line; prints the COMMAND_ACK result (or -1)
+    s.sendto(mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav), vehicle)
+    parser, result = m.MAVLink(None), -1
+    try:
+        while result < 0:
+            for msg in parser.parse_buffer(s.recv(65535)) or []:
+                if msg.get_type() == "COMMAND_ACK" and msg.command == 400:
+                    result = msg.result
+    except TimeoutError:
+        pass
+    print(result, flush=True)
+"""
+
+
+def _soon(condition: Callable[[], bool], timeout_s: float = 2.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def test_a_stranger_on_another_address_with_a_missions_port_is_not_the_run(tmp_path: Path) -> None:
+    """Issue 36, item 1: a foreign socket bound to 127.0.0.2 on the UDP port of a mission's socket (ports are
+    world-readable in /proc/net/udp) sends an unsigned ARM: ignored, before and after the mission itself is
+    obeyed unsigned; a signed ground station is obeyed too. Real sockets, a real autopilot and server."""
+    key = os.urandom(32)
+    gcs = Gcs(key=key)
+    rig = Rig(gcs, signing=SigningConfig(key), trust_unsigned=RunLocalPeers(os.getpid())).start()
+    vehicle_port = rig.server.local_address("api")[1]
+    mission = subprocess.Popen(
+        [sys.executable, "-c", MISSION_SOCKET, str(vehicle_port)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        assert mission.stdin is not None and mission.stdout is not None
+        port = int(mission.stdout.readline())
+        gcs.connect()
+        stranger.bind(("127.0.0.2", port))  # the mission's port, another loopback address
+        stranger.settimeout(0.2)
+        mav = mavlink.MAVLink(None, 250, 190)
+
+        ftp_list = list((bytes(4) + bytes([3, 2]) + bytes(6) + b"/\0").ljust(251, b"\0"))
+        asks = [  # every service: a command, MAVFTP, a parameter, the shell, a mission download
+            mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0),
+            mav.file_transfer_protocol_encode(0, 1, 1, ftp_list),
+            mav.param_request_read_encode(1, 1, b"MIS_TAKEOFF_ALT", -1),
+            mav.serial_control_encode(10, 6, 0, 0, 5, list(b"help\n".ljust(70, b"\0"))),
+            mav.mission_request_list_encode(1, 1, 0),
+        ]
+
+        def stranger_arms() -> list[object]:
+            """Everything the vehicle answers the stranger (nothing: it is no peer, its frames are dropped)."""
+            answers = []
+            for _ in range(2):
+                for msg in asks:
+                    stranger.sendto(msg.pack(mav), ("127.0.0.1", vehicle_port))
+                try:
+                    while True:
+                        answers += mavlink.MAVLink(None).parse_buffer(stranger.recv(65535)) or []
+                except TimeoutError:
+                    pass
+            return answers
+
+        assert stranger_arms() == [] and not rig.ap.telemetry.state().armed, "the stranger was obeyed unsigned"
+        mission.stdin.write("arm\n")
+        mission.stdin.flush()
+        assert int(mission.stdout.readline()) == mavlink.MAV_RESULT_ACCEPTED  # the run's own socket: obeyed
+        assert _soon(lambda: rig.ap.telemetry.state().armed)
+        assert gcs.command(400, 0, 21196).result == mavlink.MAV_RESULT_ACCEPTED  # a signed GCS: obeyed (disarm)
+        assert _soon(lambda: not rig.ap.telemetry.state().armed)
+        assert stranger_arms() == [] and not rig.ap.telemetry.state().armed, "the stranger was obeyed unsigned"
+        assert rig.server.counters().refused_unsigned >= 10
+    finally:
+        stranger.close()
+        mission.kill()
+        mission.communicate()
+        rig.stop()
+        gcs.close()
+
+
 def test_run_local_peers_trust_only_sockets_of_the_run(tmp_path: Path) -> None:
     """The ownership check itself: a socket of a child is the run's, one of this process or of a stranger is not."""
     mine = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -228,6 +324,13 @@ def test_run_local_peers_trust_only_sockets_of_the_run(tmp_path: Path) -> None:
         assert not RunLocalPeers(child.pid).trusted(False, ("127.0.0.1", child_port))  # a stranger to that run
         assert not run.trusted(True, ("127.0.0.1", child_port))  # a UDP socket is not a TCP peer
         assert not run.trusted(False, ("10.1.2.3", child_port))  # never off loopback
+        stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # the child's port on another address
+        stranger.bind(("127.0.0.2", child_port))
+        try:
+            assert not run.trusted(False, ("127.0.0.2", child_port))
+            assert run.trusted(False, ("127.0.0.1", child_port))
+        finally:
+            stranger.close()
     finally:
         child.kill()
         child.wait()

@@ -205,3 +205,26 @@ def test_ports_below_1024_only_as_root(tmp_path: Path) -> None:
         check_plan(plan)
     with pytest.raises(ScenarioError, match=r"^api_port_base: must be a port number \d+-65535, got 0$"):
         check_plan(LaunchPlan(vehicles=1, out=tmp_path, api_port_base=0))
+
+
+@pytest.mark.parametrize(
+    ("text", "says", "cut"),
+    [
+        ("x = " + "[" * 1000 + "]" * 1000 + "\n", "nested deeper than 16 levels", False),
+        ("x = " + "[" * 20 + "]" * 20 + "\n", "nested deeper than 16 levels", False),
+        ("vehicles = 1\n" + "# padding\n" * 200_000, "bytes, more than the 1,048,576 it may have", False),
+        ("vehicles = 1\n" + "k" * 500_000 + " = 1\n", "unknown key", True),
+        ('vehicles = 1\n[rates]\ntick_hz = "' + "9" * 500_000 + '"\n', "expected a number, got str", True),
+    ],
+    ids=["nested-1000", "nested-20", "two-megabytes", "long-key", "long-value"],
+)
+def test_scenario_files_that_are_too_deep_too_big_or_echo_long_values_are_one_short_line(
+    tmp_path: Path, text: str, says: str, cut: bool
+) -> None:
+    """Issue 36, item 7: a TOML nested 1,000 deep ended in a RecursionError traceback (exit 1); a 10 MB unknown key
+    was one line of 10,000,160 bytes. Now: one short line, exit 2; an echoed value is cut with "…"."""
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    line = harness_fails(tmp_path, "run", str(path))
+    assert says in line and len(line) < 400, line[:500]
+    assert ("…" in line) == cut  # the echoed key or value is cut

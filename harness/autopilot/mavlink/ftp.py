@@ -11,7 +11,15 @@ entries ``F<name>\\t<size>`` and ``D<name>``, NAK EOF past the last), 4 open rea
 write-only, 12 truncate (offset = length), 13 rename (data = ``old\\0new``), 14 CRC32 (PX4's: the CRC-32
 table with initial value 0 and no final inversion), 15 burst read (up to ``BURST`` ACKs of 239 bytes from
 offset, the last with burst_complete = 1; the client asks for the next burst from where it got to).
-16 (list with times) is NAKed UnknownCommand: MAVSDK falls back to 3. Up to four sessions.
+16 (list with times) is NAKed UnknownCommand: MAVSDK falls back to 3.
+
+Sessions belong to the peer that opened them (its link and address), as each of PX4's MAVLink instances keeps
+its own: a peer numbers its sessions from 0 and can neither read nor close another peer's (InvalidSession).
+There are ``MAX_SESSIONS`` in all; when none is free an open is NAKed NoSessionsAvailable, as PX4 answers —
+except that a session left idle for ``SESSION_IDLE_NS`` (a client that vanished mid-transfer) is given up for
+it. Reset Sessions closes the sender's own. No request holds the vehicle's loop: a read or burst is at most
+24 kB, and the CRC32 of a file larger than ``CRC_CHUNK`` is worked out ``CRC_CHUNK`` bytes per server tick,
+the answer sent when it is done (a 1 GiB file no longer stalls every link for seconds).
 
 The tree (:func:`vehicle_tree`) is ``<run dir>/fs/vehicle-<i>/``, made the first time a client asks:
 
@@ -21,7 +29,8 @@ The tree (:func:`vehicle_tree`) is ``<run dir>/fs/vehicle-<i>/``, made the first
     /etc/extras/                       empty, as in PX4 SITL
 
 Everything under the tree can be created, written, renamed and removed; the ULog (written by the logger)
-is read-only, and nothing outside the run directory can be reached. Without a run directory (a vehicle
+is read-only (it cannot be written, truncated, renamed or removed, nor can another file be renamed over it),
+and nothing outside the run directory can be reached. Without a run directory (a vehicle
 started in-process) every request is NAKed: FileNotFound for opens and lists, UnknownCommand otherwise, so
 MAVProxy falls back to the parameter protocol at once.
 """
@@ -42,6 +51,7 @@ from typing import BinaryIO
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from harness.autopilot.api import VehicleState
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
 from harness.autopilot.mavlink.param_store import ParamStore, store_path
 from harness.autopilot.mavlink.service import Service
@@ -54,6 +64,11 @@ DATA_MAX = 239
 BURST = 100
 """ACKs per burst (24 kB): a burst at once would overflow a client's socket buffer for a large log."""
 MAX_SESSIONS = 4
+"""Open files of all peers together (PX4 SITL: one per MAVLink instance, four instances)."""
+SESSION_IDLE_NS = 10_000_000_000
+"""A session with no request for this long may be given to another open (its client is gone)."""
+CRC_CHUNK = 4 << 20
+"""Bytes of a file's CRC32 worked out per server tick (a few ms)."""
 
 OP_NONE, OP_TERMINATE, OP_RESET, OP_LIST, OP_OPEN_RO, OP_READ, OP_CREATE, OP_WRITE = range(8)
 OP_REMOVE_FILE, OP_MKDIR, OP_RMDIR, OP_OPEN_WO, OP_TRUNCATE, OP_RENAME, OP_CRC32, OP_BURST = range(8, 16)
@@ -110,12 +125,28 @@ def _tree_of(api: System, vehicle: int) -> Path | None:
     return vehicle_tree(path.parent, vehicle, path, start_unix_s)
 
 
+Peer = tuple[int, tuple[str, int]]
+"""(link, address): who opened a session."""
+
+
 @dataclass(slots=True)
 class _Session:
     path: Path
     f: BinaryIO
     size: int
     writable: bool
+    used_ns: int = 0
+
+
+@dataclass(slots=True)
+class _CrcJob:
+    """A CRC32 worked out over several ticks: the answer goes to ``origin`` with the latest request's seq."""
+
+    origin: Origin
+    seq: int
+    path: Path
+    f: BinaryIO
+    crc: int = 0
 
 
 class FtpError(Exception):
@@ -141,7 +172,11 @@ class FtpService(Service):
         self.api = api
         self._tree = tree if tree is not None else (lambda: _tree_of(api, vehicle))
         self._root: Path | None = None
-        self._sessions: dict[int, _Session] = {}
+        self._sessions: dict[tuple[Peer, int], _Session] = {}
+        self._crc_jobs: dict[Peer, _CrcJob] = {}
+        self._peer: Peer = (0, ("", 0))
+        """The peer of the request being handled."""
+        self._now = 0
 
     @property
     def root(self) -> Path | None:
@@ -156,6 +191,36 @@ class FtpService(Service):
         for s in self._sessions.values():
             s.f.close()
         self._sessions.clear()
+        for job in self._crc_jobs.values():
+            job.f.close()
+        self._crc_jobs.clear()
+
+    @property
+    def busy(self) -> bool:
+        """A CRC32 is being worked out: the server ticks again soon."""
+        return bool(self._crc_jobs)
+
+    def tick(self, state: VehicleState, now: int) -> list[Out]:
+        """One ``CRC_CHUNK`` of each CRC32 under way; the answer of those done."""
+        outs = []
+        for peer, job in list(self._crc_jobs.items()):
+            try:
+                block = job.f.read(CRC_CHUNK)
+            except OSError as e:
+                del self._crc_jobs[peer]
+                job.f.close()
+                err = _os_error(e)
+                body = bytes([err.code, err.err]) if err.code == ERR_FAIL_ERRNO else bytes([err.code])
+                outs.append(self._out(self._pack(job.seq + 1, 0, OP_NAK, OP_CRC32, 0, 0, body), job.origin))
+                continue
+            if block:
+                job.crc = crc32_px4(block, job.crc)
+                continue
+            del self._crc_jobs[peer]
+            job.f.close()
+            reply = self._pack(job.seq + 1, 0, OP_ACK, OP_CRC32, 0, 0, struct.pack("<I", job.crc))
+            outs.append(self._out(reply, job.origin))
+        return outs
 
     # ------------------------------------------------------------------ protocol
     def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out]:
@@ -167,11 +232,14 @@ class FtpService(Service):
             return []
         data = payload[_HEADER.size : _HEADER.size + min(size, DATA_MAX)]
         root = self.root
+        self._peer, self._now = (origin.link, origin.addr), now
         try:
             if root is None:
                 raise FtpError(ERR_FILE_NOT_FOUND if opcode in (OP_OPEN_RO, OP_LIST) else ERR_UNKNOWN_COMMAND)
             if opcode == OP_BURST:
                 return [self._out(p, origin) for p in self._burst(seq, session, offset)]
+            if opcode == OP_CRC32:
+                return self._crc_request(root, seq, data, origin)
             reply_session, reply_offset, body = self._execute(root, opcode, session, offset, size, data)
         except FtpError as e:
             body = bytes([e.code, e.err]) if e.code == ERR_FAIL_ERRNO else bytes([e.code])
@@ -194,13 +262,14 @@ class FtpService(Service):
         if op == OP_NONE:
             return session, 0, b""
         if op == OP_TERMINATE:
-            s = self._sessions.pop(session, None)
+            s = self._sessions.pop((self._peer, session), None)
             if s is None:
                 raise FtpError(ERR_INVALID_SESSION)
             s.f.close()
             return session, 0, b""
-        if op == OP_RESET:
-            self.close()
+        if op == OP_RESET:  # the sender's own sessions (another client's transfer goes on)
+            for key in [k for k in self._sessions if k[0] == self._peer]:
+                self._sessions.pop(key).f.close()
             return session, 0, b""
         if op == OP_LIST:
             return session, offset, self._list(root, data, offset)
@@ -225,6 +294,7 @@ class FtpService(Service):
             if op == OP_REMOVE_FILE:
                 if path.is_dir() and not path.is_symlink():
                     raise FtpError(ERR_FAIL_ERRNO, errno.EISDIR)
+                self._not_the_log(path)
                 path.unlink()
             elif op == OP_MKDIR:
                 path.mkdir()
@@ -237,9 +307,10 @@ class FtpService(Service):
                 parts = data.split(b"\0")
                 if len(parts) < 2 or not parts[1]:
                     raise FtpError(ERR_INVALID_DATA_SIZE)
-                path.rename(self._path(root, parts[1]))
-            elif op == OP_CRC32:
-                return session, 0, struct.pack("<I", self._crc(self._readable(root, path)))
+                target = self._path(root, parts[1])
+                self._not_the_log(path)
+                self._not_the_log(target)
+                path.rename(target)
             else:
                 raise FtpError(ERR_UNKNOWN_COMMAND)
         except OSError as e:
@@ -261,6 +332,13 @@ class FtpService(Service):
         if real != base and base not in real.parents:
             raise FtpError(ERR_FILE_PROTECTED)
         return real
+
+    def _not_the_log(self, path: Path) -> None:
+        """The flight log, which the logger writes, is not renamed, removed or replaced (as a link or a file)."""
+        files = self.api.log_files
+        logs = {Path(os.path.realpath(p)) for p, _size, _t in files.files()} if files is not None else set()
+        if Path(os.path.realpath(path)) in logs or (path.suffix == ".ulg" and path.is_symlink()):
+            raise FtpError(ERR_FILE_PROTECTED)
 
     def _writable(self, root: Path, path: Path) -> Path:
         real = self._readable(root, path)
@@ -320,11 +398,15 @@ class FtpService(Service):
                 size = os.fstat(f.fileno()).st_size
         except OSError as e:
             raise _os_error(e) from None
-        if len(self._sessions) >= MAX_SESSIONS:  # a client that vanished mid-transfer: its oldest session goes
-            oldest = next(iter(self._sessions))
-            self._sessions.pop(oldest).f.close()
-        sid = min(set(range(MAX_SESSIONS)) - set(self._sessions))  # 0 when none is open: MAVSDK assumes session 0
-        self._sessions[sid] = _Session(real, f, size, op != OP_OPEN_RO)
+        if len(self._sessions) >= MAX_SESSIONS:
+            idle = [k for k, s in self._sessions.items() if self._now - s.used_ns > SESSION_IDLE_NS]
+            if not idle:
+                f.close()
+                raise FtpError(ERR_NO_SESSIONS)
+            self._sessions.pop(idle[0]).f.close()  # a client that vanished mid-transfer
+        mine = {sid for peer, sid in self._sessions if peer == self._peer}
+        sid = min(set(range(MAX_SESSIONS)) - mine)  # 0 for a peer's first: MAVSDK assumes session 0
+        self._sessions[(self._peer, sid)] = _Session(real, f, size, op != OP_OPEN_RO, self._now)
         return sid, size
 
     def _log_size(self, real: Path) -> int | None:
@@ -338,9 +420,11 @@ class FtpService(Service):
         return None
 
     def _session(self, session: int) -> _Session:
-        s = self._sessions.get(session)
+        """The sender's session ``session`` (another peer's is not there for it: InvalidSession)."""
+        s = self._sessions.get((self._peer, session))
         if s is None:
             raise FtpError(ERR_INVALID_SESSION)
+        s.used_ns = self._now
         return s
 
     def _read(self, session: int, offset: int, n: int) -> bytes:
@@ -363,13 +447,35 @@ class FtpService(Service):
             out.append(self._pack(seq + 1 + k, session, OP_ACK, OP_BURST, done, offset + i, body))
         return out
 
-    @staticmethod
-    def _crc(path: Path) -> int:
-        crc = 0
-        with path.open("rb") as f:
-            while block := f.read(1 << 16):
-                crc = crc32_px4(block, crc)
-        return crc
+    def _crc_request(self, root: Path, seq: int, data: bytes, origin: Origin) -> list[Out]:
+        """CalcFileCRC32: at once for a file of at most ``CRC_CHUNK`` bytes, else over several ticks (a repeat
+        of the request while it is worked out only updates the seq the answer carries)."""
+        job = self._crc_jobs.get(self._peer)
+        path = self._path(root, data.split(b"\0", 1)[0])
+        try:
+            real = self._readable(root, path)
+            if job is not None and job.path == real:
+                job.seq, job.origin = seq, origin
+                return []
+            f = real.open("rb")
+        except OSError as e:
+            raise _os_error(e) from None
+        if job is not None:  # a new file asked for: the old one is given up
+            job.f.close()
+            del self._crc_jobs[self._peer]
+        job = _CrcJob(origin, seq, real, f)
+        try:
+            block = f.read(CRC_CHUNK + 1)
+        except OSError as e:
+            f.close()
+            raise _os_error(e) from None
+        if len(block) <= CRC_CHUNK:
+            f.close()
+            reply = self._pack(seq + 1, 0, OP_ACK, OP_CRC32, 0, 0, struct.pack("<I", crc32_px4(block)))
+            return [self._out(reply, origin)]
+        job.crc = crc32_px4(block)
+        self._crc_jobs[self._peer] = job
+        return []
 
 
 def nak(mav: mavlink2.MAVLink, m: MAVLinkMessage, origin: Origin) -> list[Out]:

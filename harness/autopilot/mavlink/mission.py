@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from harness.autopilot.api import SKIPPED_MISSION_COMMANDS, CommandResult, MissionItem, MissionKind, Result
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, clamp_int
+from harness.autopilot.mavlink.mission_items import ItemResult, px4_item_result
 from harness.autopilot.services import System
 
 log = logging.getLogger(__name__)
@@ -114,8 +115,12 @@ class MissionService:
         retry_ns: int = 1_500_000_000,
         max_retries: int = 5,
         float_form: bool = False,
+        check_item: Callable[[MAVLinkMessage], ItemResult] = px4_item_result,
     ) -> None:
         self.api = api
+        self.check_item = check_item
+        """The firmware's own check of each item as it arrives (``mission_items.py``): a refused item ends the
+        upload with the firmware's MAV_MISSION_RESULT."""
         self.float_form = float_form
         """ArduPilot: ask for items with MISSION_REQUEST (DroneKit answers nothing else) and answer a
         MISSION_REQUEST with a float MISSION_ITEM; the _INT forms keep working."""
@@ -188,6 +193,11 @@ class MissionService:
         expected = len(up.items)
         if m.seq != expected:
             return [self._request(up, now_ns)]  # duplicate or out of order: ask again for the one we need
+        code, reason = self.check_item(m)
+        if code != mavlink2.MAV_MISSION_ACCEPTED:
+            self._upload = None
+            self.refusals.append(CommandResult.denied(f"mission refused: {reason}"))
+            return [self._ack(origin, code, up.kind)]
         try:
             up.items.append(item_from_message(m, MissionKind(up.kind)))
         except (ValueError, OverflowError) as e:

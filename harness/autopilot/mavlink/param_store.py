@@ -11,14 +11,31 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import threading
 from pathlib import Path
 
 from harness.autopilot.params import Params
 from harness.autopilot.services import System
+from harness.core.limits import cut, shown
 
 log = logging.getLogger(__name__)
+
+MAX_FILE_BYTES = 1 << 20
+"""A saved parameter file holds a few hundred names and numbers: one larger is not ours."""
+_NAME_MAX = 64
+
+
+def _finite(value: object) -> float | None:
+    """``value`` as a float when it is a finite number (not a bool, not an int too large for a float)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
 
 
 def run_dir_of(system: System) -> Path | None:
@@ -38,18 +55,43 @@ class ParamStore:
         self._lock = threading.Lock()
 
     def load(self) -> dict[str, float]:
-        """The saved values ({} when nothing was saved; a corrupt file is logged and ignored)."""
+        """The saved values ({} when nothing was saved). The file may have been written by anyone (a ground
+        station over MAVFTP): one too big, not JSON, nested or not an object is ignored, and so is every value
+        that is not a finite number a float holds — each said in one warning line, never an exception that
+        would stop a reboot or the next start on this run directory."""
         try:
-            data = json.loads(self.path.read_text())
+            with self.path.open("rb") as f:
+                data = f.read(MAX_FILE_BYTES + 1)
         except FileNotFoundError:
             return {}
-        except (OSError, ValueError) as e:
+        except OSError as e:
             log.warning("ignoring unreadable parameter file %s: %s", self.path, e)
             return {}
-        if not isinstance(data, dict):
+        if len(data) > MAX_FILE_BYTES:
+            log.warning("ignoring parameter file %s: larger than %d bytes", self.path, MAX_FILE_BYTES)
+            return {}
+        try:
+            parsed = json.loads(data)  # NaN and Infinity parse, and are ignored below as any non-finite value
+        except (ValueError, RecursionError) as e:
+            log.warning("ignoring unreadable parameter file %s: %s", self.path, cut(str(e), 200))
+            return {}
+        if not isinstance(parsed, dict):
             log.warning("ignoring parameter file %s: not a JSON object", self.path)
             return {}
-        return {str(k): float(v) for k, v in data.items() if isinstance(v, int | float)}
+        values: dict[str, float] = {}
+        refused: list[str] = []
+        for name, v in parsed.items():
+            number = _finite(v)
+            if number is None or len(name) > _NAME_MAX:
+                refused.append(shown(name, 20))
+            else:
+                values[name] = number
+        if refused:
+            log.warning(
+                "parameter file %s: %d value(s) ignored, not finite numbers: %s",
+                self.path, len(refused), cut(", ".join(refused), 200),
+            )  # fmt: skip
+        return values
 
     def save(self, params: Params) -> None:
         defaults = {d.name: d.default for d in params.defs}

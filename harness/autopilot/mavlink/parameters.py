@@ -3,7 +3,8 @@
 PX4 conventions: INT32 values travel *bytewise* in the float field (AUTOPILOT_VERSION announces
 PARAM_ENCODE_BYTEWISE), every PARAM_VALUE carries the parameter's index and the total count, and a
 PARAM_SET is echoed with the same type and value (or the unchanged value plus a STATUSTEXT reason when it
-is refused) — without an echo MAVSDK retries five times and fails. A full list is paced out over a few
+is refused: out of range, not finite) — without an echo MAVSDK retries five times and fails. A PARAM_SET whose
+type is not the parameter's is ignored, as PX4 ignores it (a STATUSTEXT says why). A full list is paced out over a few
 server iterations so a burst never overflows a ground station's socket buffer.
 """
 
@@ -31,6 +32,12 @@ _INT_TYPES = {
     mavlink2.MAV_PARAM_TYPE_INT16: "<h",
     mavlink2.MAV_PARAM_TYPE_UINT32: "<I",
     mavlink2.MAV_PARAM_TYPE_INT32: "<i",
+}
+
+_TYPE_NAMES = {
+    v: k.removeprefix("MAV_PARAM_TYPE_")
+    for k, v in vars(mavlink2).items()
+    if k.startswith("MAV_PARAM_TYPE_") and k != "MAV_PARAM_TYPE_ENUM_END" and isinstance(v, int)
 }
 
 
@@ -134,6 +141,13 @@ class ParamService:
         index = self.table.index(name)
         if index < 0:
             return [], CommandResult.denied(f"PARAM_SET: unknown parameter {name!r}")
+        if self.table.bytewise and m.param_type != self.table.mav_type(index):
+            # PX4 (mavlink_parameters.cpp): "param types mismatch", nothing set and nothing sent back — a UINT8
+            # 3 for a REAL32 parameter is not read as the float whose bits are 3. ArduPilot takes any type (its
+            # value is always a float, the type a hint): ``bytewise`` False.
+            want = _TYPE_NAMES.get(self.table.mav_type(index), "?")
+            got = _TYPE_NAMES.get(m.param_type, str(m.param_type))
+            return [], CommandResult.denied(f"PARAM_SET {name}: {got} is not {want}")
         value = decode_value(m.param_value, m.param_type) if self.table.bytewise else float(m.param_value)
         result = self.api.params.set(name, value)
         # Echo (new or unchanged value) to everyone, like PX4: the sender sees its confirmation.

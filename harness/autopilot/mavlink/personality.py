@@ -31,6 +31,7 @@ from harness.autopilot.mavlink.commands import CommandIn, CommandOutcome
 from harness.autopilot.mavlink.dialect_api import Component, Dialect, DialectHost
 from harness.autopilot.mavlink.heartbeat import heartbeat_message
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out
+from harness.autopilot.mavlink.mission_items import px4_item_result
 from harness.autopilot.mavlink.px4_services import Px4Services
 from harness.autopilot.mavlink.telemetry import DEFAULT_INTERVALS_NS, Builder
 from harness.autopilot.mavlink.version import autopilot_version
@@ -55,6 +56,9 @@ class Px4Dialect:
     def bind(self, host: DialectHost, mav: mavlink2.MAVLink, sysid: int) -> None:
         self.px4.bind(mav, host.streams.set_interval)
 
+    def check_mission_item(self, m: MAVLinkMessage) -> tuple[int, str]:
+        return px4_item_result(m)
+
     def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage:
         return heartbeat_message(mav, state)
 
@@ -69,6 +73,10 @@ class Px4Dialect:
 
     def tick(self, state: VehicleState, now: int) -> list[Out]:
         return self.px4.tick(state, now)
+
+    @property
+    def busy(self) -> bool:
+        return self.px4.busy
 
     def close(self) -> None:
         self.px4.close()

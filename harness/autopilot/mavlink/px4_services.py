@@ -84,5 +84,11 @@ class Px4Services:
             outs += s.tick(state, now)
         return outs
 
+    @property
+    def busy(self) -> bool:
+        """Work under way over several ticks (a large file's CRC32, shell lines that waited); asked at every
+        service of the server, so only the services that can be busy are asked."""
+        return self.ftp.busy or self.shell.busy
+
     def close(self) -> None:
         self.ftp.close()

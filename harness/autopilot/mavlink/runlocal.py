@@ -3,17 +3,23 @@
 With signing on, a vehicle obeys signed frames from anyone and unsigned frames only from the run's own
 processes — the missions ``harness run`` started (and what they start: ``mavsdk_server``), which are
 unmodified scripts that know nothing of the key. A UDP datagram or TCP connection from loopback carries its
-source port; ``/proc/net/{udp,tcp}{,6}`` maps the socket bound to that port to an inode, and
-``/proc/<pid>/fd`` says which process holds that inode. The peer is the run's when that process descends
-from the run's main process. A process outside the run (another user's, or the same user's but not started
-by this run) is not trusted whatever port it uses. Answers are cached per address for a few seconds.
+source address and port; ``/proc/net/{udp,tcp}{,6}`` maps the sockets that can send from that address (bound
+to it, or to the wildcard address on its port) to inodes, and ``/proc/<pid>/fd`` says which processes hold
+them. The peer is the run's when every one of those sockets is held by processes descending from the run's
+main process. Never by port alone: a stranger can bind ``127.0.0.2`` on the port a mission holds on
+``127.0.0.1``. A process outside the run (another user's, or the same user's but not started by this run) is
+not trusted whatever address it uses. Every service (commands, parameters, missions, MAVFTP, the shell) is
+behind this one check: an unsigned frame that fails it is dropped before it is decoded into a message.
+Answers are cached per address for a few seconds.
 
 Linux only (``/proc``); elsewhere nothing is trusted and every frame must be signed.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import os
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -32,9 +38,37 @@ def _is_loopback(host: str) -> bool:
     return host.startswith("127.") or host.startswith(_LOOPBACK_V6)
 
 
-def socket_inodes(proto: str, port: int, proc: Path = Path("/proc")) -> set[str]:
-    """Inodes of the ``proto`` ("udp" or "tcp") sockets bound to local ``port`` (IPv4 and IPv6)."""
+def _proc_ip(hexaddr: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
+    """An address as ``/proc/net/{udp,tcp}{,6}`` writes it: 32-bit words in host byte order, in hex."""
+    raw = bytes.fromhex(hexaddr)
+    words = b"".join(int.from_bytes(raw[i : i + 4], sys.byteorder).to_bytes(4, "big") for i in range(0, len(raw), 4))
+    ip = ipaddress.ip_address(words)
+    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+        return ip.ipv4_mapped
+    return ip
+
+
+def _peer_ip(host: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
+    try:
+        ip = ipaddress.ip_address(host.split("%", 1)[0])
+    except ValueError:
+        return None
+    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+        return ip.ipv4_mapped
+    return ip
+
+
+def socket_inodes(proto: str, addr: Address, proc: Path = Path("/proc")) -> set[str]:
+    """Inodes of the ``proto`` ("udp" or "tcp") sockets that can send from ``addr`` (host, port): bound to that
+    address and port, or to the wildcard address on that port (IPv4 and IPv6 tables).
+
+    A port alone says nothing: another process may bind ``127.0.0.2`` on the port a mission holds on
+    ``127.0.0.1`` (ports are world-readable here). The caller trusts ``addr`` only when every one of these
+    sockets is the run's (a wildcard socket of a stranger on the same port makes it untrusted too)."""
+    want = _peer_ip(addr[0])
     found: set[str] = set()
+    if want is None:
+        return found
     for table in (proto, proto + "6"):
         try:
             lines = (proc / "net" / table).read_text().splitlines()[1:]
@@ -42,9 +76,41 @@ def socket_inodes(proto: str, port: int, proc: Path = Path("/proc")) -> set[str]
             continue
         for line in lines:
             fields = line.split()
-            if len(fields) > 9 and int(fields[1].rsplit(":", 1)[1], 16) == port:
+            if len(fields) <= 9 or fields[9] == "0":  # inode 0: a TIME_WAIT leftover nobody holds
+                continue
+            host, _, port = fields[1].rpartition(":")
+            try:
+                if int(port, 16) != addr[1]:
+                    continue
+                ip = _proc_ip(host)
+            except ValueError:
+                continue
+            if ip == want or ip.is_unspecified:
                 found.add(fields[9])
     return found
+
+
+def udp_bound(proc: Path = Path("/proc")) -> set[Address] | None:
+    """Every (address, port) a UDP socket on this machine is bound to (the wildcard as "0.0.0.0" / "::");
+    None when ``/proc`` cannot say (not Linux)."""
+    found: set[Address] = set()
+    read_any = False
+    for table in ("udp", "udp6"):
+        try:
+            lines = (proc / "net" / table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        read_any = True
+        for line in lines:
+            fields = line.split()
+            if len(fields) < 2:
+                continue
+            host, _, port = fields[1].rpartition(":")
+            try:
+                found.add((str(_proc_ip(host)), int(port, 16)))
+            except ValueError:
+                continue
+    return found if read_any else None
 
 
 def _children(pid: int, proc: Path) -> list[int]:
@@ -96,8 +162,8 @@ def descendants(root: int, proc: Path = Path("/proc"), *, quick: bool = False) -
     return found
 
 
-def owns_any(pids: Iterable[int], inodes: set[str], proc: Path = Path("/proc")) -> bool:
-    """Whether one of ``pids`` holds a socket with one of ``inodes``."""
+def owns_all(pids: Iterable[int], inodes: set[str], proc: Path = Path("/proc")) -> bool:
+    """Whether ``pids`` between them hold every socket of ``inodes`` (none: False)."""
     links = {f"socket:[{i}]" for i in inodes}
     for pid in pids:
         fd_dir = proc / str(pid) / "fd"
@@ -107,10 +173,11 @@ def owns_any(pids: Iterable[int], inodes: set[str], proc: Path = Path("/proc")) 
             continue
         for fd in fds:
             try:
-                if os.readlink(fd_dir / fd) in links:
-                    return True
+                links.discard(os.readlink(fd_dir / fd))
             except OSError:
                 continue
+            if not links:
+                return bool(inodes)
     return False
 
 
@@ -134,13 +201,13 @@ class RunLocalPeers:
         cached = self._cache.get(key)
         if cached is not None and cached[1] > now:
             return cached[0]
-        inodes = socket_inodes("tcp" if tcp else "udp", addr[1], self._proc)
+        inodes = socket_inodes("tcp" if tcp else "udp", addr, self._proc)
         if inodes and inodes <= self._trusted_inodes:  # the same sockets as before: no need to find their owner
             verdict = True
         else:
             verdict = bool(inodes) and (
-                owns_any(descendants(self.root_pid, self._proc, quick=True), inodes, self._proc)
-                or owns_any(descendants(self.root_pid, self._proc), inodes, self._proc)
+                owns_all(descendants(self.root_pid, self._proc, quick=True), inodes, self._proc)
+                or owns_all(descendants(self.root_pid, self._proc), inodes, self._proc)
             )
             if verdict:
                 self._trusted_inodes |= inodes

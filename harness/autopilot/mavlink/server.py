@@ -109,6 +109,13 @@ phase 0 forever; a mission upload or a burst of setpoints is far below it. Count
 the same messages are handled in the same loop at any pace."""
 
 
+RECEIVE_BUDGET_NS = 20_000_000
+"""Wall time one ``receive`` spends on datagrams before it lets the hub service what is due (heartbeats,
+streams): a client flooding the vehicle (shell, MAVFTP, commands) delays the others' heartbeats by about
+this much, not by as long as the flood lasts. What is left stays in the socket, in order (a mission's settle
+is answered only after everything it sent before)."""
+
+
 class MavlinkServer:
     """PX4-dialect MAVLink endpoint of one vehicle (system id ``sysid(vehicle)``: ``vehicle + 1`` up to 244 vehicles; component 1).
 
@@ -173,7 +180,9 @@ class MavlinkServer:
         self.streams = StreamScheduler(defaults=dict(dialect.stream_defaults), builders=self.builders)
         self.heartbeat = HeartbeatSchedule()
         self.params = ParamService(autopilot, mav, bytewise=dialect.param_bytewise)
-        self.missions = MissionService(autopilot, mav, float_form=dialect.mission_float_form)
+        self.missions = MissionService(
+            autopilot, mav, float_form=dialect.mission_float_form, check_item=dialect.check_mission_item
+        )
         self.logs = LogService(autopilot, mav)
         self.commands = CommandService(autopilot, self._request_message, self.streams.set_interval)
         self.commands.override(dialect.command_handlers())
@@ -274,9 +283,12 @@ class MavlinkServer:
     def receive(self, link: int, now: int) -> None:
         """Datagrams are waiting on ``links[link]``: handle them (hub thread)."""
         with self._lock:
+            start = self._wall_ns()
             try:
                 for data, addr in self.links[link].receive(512):
                     self._on_datagram(link, data, addr, now)
+                    if self._wall_ns() - start > RECEIVE_BUDGET_NS:
+                        break  # the rest waits in the socket, in order: heartbeats and streams go out first
             except Exception as e:  # never let one bad datagram end the thread
                 self._count("handler_errors")
                 self._log_once(e, "receive")
@@ -322,7 +334,7 @@ class MavlinkServer:
         wake = min(
             self.heartbeat.next_due_ns(), self.streams.next_due_wall_ns() or _NEVER, _NEVER if sim_peers else retry
         )
-        if self.params.busy:
+        if self.params.busy or self.dialect.busy:
             wake = min(wake, now + _PARAM_PACE_NS)
         if any(link.greeting for link in self.links):
             wake = min(wake, now + GREET_NS)

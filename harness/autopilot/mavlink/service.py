@@ -4,6 +4,7 @@ messages, commands and the passing of time, and returns ``Out`` items for the se
 - ``message_ids``: the messages it handles (``handle(msg, origin, now) -> outs``);
 - ``commands()``: the COMMAND_LONG / COMMAND_INT ids it executes (the command service ACKs them as every other);
 - ``tick(state, now)``: what falls due (sim time is ``state.t_ns``; ``now`` is the server's wall clock);
+- ``busy``: work under way that the next ticks go on with (a long CRC32, queued shell lines);
 - ``builders`` / ``stream_defaults``: messages it can build on request or stream.
 
 ``now`` is wall-clock nanoseconds (the server's clock); anything that models the vehicle runs on sim time.
@@ -45,6 +46,11 @@ class Service:
 
     def tick(self, state: VehicleState, now: int) -> list[Out]:
         return []
+
+    @property
+    def busy(self) -> bool:
+        """Work is under way that ``tick`` goes on with (the server ticks again within milliseconds)."""
+        return False
 
     def text(self, severity: Severity, text: str) -> Out:
         """One STATUSTEXT (at most 50 bytes) to everyone, sent as is (no repeat suppression)."""

@@ -1,9 +1,15 @@
 """The MAVLink shell (SERIAL_CONTROL, device SERIAL_CONTROL_DEV_SHELL = 10), as PX4 offers its NuttShell over
 MAVLink (MAVSDK ``shell``, QGroundControl's MAVLink console, PX4's ``mavlink_shell.py``).
 
-Input is buffered until a newline; each line is echoed, executed, and answered with its output and the
-prompt ``nsh> ``, in SERIAL_CONTROL replies (flags SERIAL_CONTROL_FLAG_REPLY, 70 bytes each) to the sender.
-The first input also gets the banner. Replies from clients (flag REPLY) and other devices are ignored.
+Input is buffered until a newline, per client (its link and address: two consoles do not mix their
+keystrokes); each line is echoed, executed, and answered with its output and the prompt ``nsh> ``, in
+SERIAL_CONTROL replies (flags SERIAL_CONTROL_FLAG_REPLY, 70 bytes each) to the sender. A client's first
+input also gets the banner. Replies from clients (flag REPLY) and other devices are ignored.
+
+Bounded as NuttShell's line editor is: a line is at most ``LINE_MAX`` bytes (the rest of a longer one is
+dropped and the line answered ``nsh: line too long``), at most ``LINES_PER_LOOP`` lines run per message or
+server tick (more wait, up to ``PENDING_MAX``), and at most ``CLIENTS_MAX`` consoles are kept (the one
+silent longest goes). A megabyte of input costs what its datagrams cost to read, not a stalled vehicle.
 
 A small real command set, on the vehicle itself:
 
@@ -24,8 +30,8 @@ from __future__ import annotations
 
 import fnmatch
 import math
-import platform
 import shlex
+from collections import deque
 from collections.abc import Callable
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -74,6 +80,41 @@ def _vec(v: tuple[float, ...] | None, fmt: str = "{:.4f}") -> str:
     return "[" + ", ".join(fmt.format(x) for x in v) + "]" if v is not None else "[]"
 
 
+LINE_MAX = 256
+"""Bytes of one command line (NuttShell's CONFIG_NSH_LINELEN is 64..80 on a flight controller)."""
+LINES_PER_LOOP = 4
+"""Command lines run per SERIAL_CONTROL message or server tick; more wait for the next ticks."""
+PENDING_MAX = 16
+"""Complete lines a console keeps waiting; more are dropped."""
+CLIENTS_MAX = 8
+
+
+class _Console:
+    """One client's input: the line being typed (bounded) and the complete lines not run yet."""
+
+    def __init__(self, origin: Origin) -> None:
+        self.origin = origin
+        self.started = False
+        self.partial = bytearray()
+        self.too_long = False
+        self.lines: deque[str | None] = deque()
+        """Complete lines to run; None for one that was too long."""
+
+    def feed(self, data: bytes) -> None:
+        while data:
+            head, newline, data = data.partition(b"\n")
+            if not self.too_long:
+                self.partial += head
+                if len(self.partial) > LINE_MAX:
+                    self.too_long, self.partial = True, bytearray()
+            if not newline:
+                return
+            if len(self.lines) < PENDING_MAX:
+                text = self.partial.decode("utf-8", errors="replace").rstrip("\r")
+                self.lines.append(None if self.too_long else text)
+            self.partial, self.too_long = bytearray(), False
+
+
 class ShellService(Service):
     message_ids = frozenset({_M.MAVLINK_MSG_ID_SERIAL_CONTROL})
 
@@ -87,26 +128,49 @@ class ShellService(Service):
         self.api = api
         self._reboot = reboot
         self._gimbal = gimbal_attitude
-        self._buffer = ""
-        self._started = False
+        self._consoles: dict[tuple[int, tuple[str, int]], _Console] = {}
         self.table = ParamTable(api)
 
     def handle(self, m: MAVLinkMessage, origin: Origin, now: int) -> list[Out]:
         if m.device != _M.SERIAL_CONTROL_DEV_SHELL or m.flags & _M.SERIAL_CONTROL_FLAG_REPLY:
             return []
+        key = (origin.link, origin.addr)
+        console = self._consoles.pop(key, None)  # popped and put back: the dict is in order of use
+        if console is None:
+            console = _Console(origin)
+            if len(self._consoles) >= CLIENTS_MAX:
+                del self._consoles[next(iter(self._consoles))]
+        self._consoles[key] = console
+        console.origin = origin
         n = max(0, min(int(m.count), len(m.data)))
-        self._buffer += bytes(m.data[:n]).decode("utf-8", errors="replace")
+        console.feed(bytes(m.data[:n]))
         out = ""
-        if not self._started:
-            self._started = True
+        if not console.started:
+            console.started = True
             out += BANNER
-            if "\n" not in self._buffer:
+            if not console.lines:
                 out += PROMPT
-        while "\n" in self._buffer:
-            line, self._buffer = self._buffer.split("\n", 1)
-            line = line.rstrip("\r")
-            out += line + "\n" + self.run(line) + PROMPT
-        return self._reply(out, origin)
+        return self._reply(out + self._run_lines(console), origin)
+
+    @property
+    def busy(self) -> bool:
+        return any(c.lines for c in self._consoles.values())
+
+    def tick(self, state: VehicleState, now: int) -> list[Out]:
+        """Lines that waited (more than ``LINES_PER_LOOP`` came in one message)."""
+        outs: list[Out] = []
+        for console in self._consoles.values():
+            if console.lines:
+                outs += self._reply(self._run_lines(console), console.origin)
+        return outs
+
+    def _run_lines(self, console: _Console) -> str:
+        out = ""
+        for _ in range(min(LINES_PER_LOOP, len(console.lines))):
+            line = console.lines.popleft()
+            result = "nsh: line too long\n" if line is None else self.run(line)
+            out += (line or "") + "\n" + result + PROMPT
+        return out
 
     def _reply(self, text: str, origin: Origin) -> list[Out]:
         assert self.mav is not None
@@ -164,9 +228,9 @@ class ShellService(Service):
             + "HW type: SITL\n"
             + f"FW version: {VERSION} {FLIGHT_SW_VERSION & 0xFF} ({FLIGHT_SW_VERSION})\n"
             + git
-            + f"OS: {platform.system()}\n"
-            + f"OS version: {platform.release()}\n"
-            + f"Toolchain: uav-harness (Python {platform.python_version()})\n"
+            + "OS: Linux\n"  # what PX4 SITL's ``ver all`` says on Linux; never the host's kernel or Python
+            + "OS version: Release 0.0.0 (0)\n"
+            + "Toolchain: uav-harness\n"
         )
 
     def _param(self, args: list[str]) -> str:

@@ -16,6 +16,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
+from harness.autopilot.mavlink.runlocal import udp_bound
 from harness.core.endpoints import LISTEN_HELLO, LISTEN_HELLO_WALL
 from harness.core.errors import ScenarioError
 
@@ -24,8 +25,10 @@ log = logging.getLogger(__name__)
 Address = tuple[str, int]
 
 PEER_TIMEOUT_NS = 10_000_000_000
-_FOREVER = 1 << 62
-"""Last-heard time of a peer that announced itself as a listener: never forgotten for silence."""
+LISTENERS_MAX = 64
+"""Sockets announced with ``LISTEN_HELLO`` a link keeps (a mission has one or two); later ones are ignored."""
+_LISTENER_CHECK_NS = 2_000_000_000
+"""How often the listeners silent for ``peer_timeout_ns`` are checked for a socket still bound there."""
 _RECV_SIZE = 65_535
 GREET_NS = 20_000_000
 """A port announced with ``LISTEN_HELLO_WALL`` gets a heartbeat this often until it answers (MAVSDK listening
@@ -143,6 +146,10 @@ class UdpLink:
         self._greeting: dict[Address, int] = {}
         """Announced MAVSDK ports that have not spoken yet: address → wall time to give up greeting."""
         self._greeted_ns = 0
+        self._last_now = 0
+        """The wall time of the last ``destinations`` (a listener announced since counts as heard then)."""
+        self._listeners_checked_ns = 0
+        self.listeners_refused = 0
         self.send_errors = 0
         self.recv_errors = 0
         self.sim_sent = 0
@@ -181,8 +188,12 @@ class UdpLink:
                     log.debug("%s link: receive error %s", self.name, e)
                 continue
             if data == LISTEN_HELLO:  # a mission's listening socket (pymavlink udpin): it gets what peers get
-                self._peers[(addr[0], addr[1])] = _FOREVER
-                self._sim_peers.add((addr[0], addr[1]))
+                peer = (addr[0], addr[1])
+                if peer not in self._sim_peers and len(self._sim_peers) >= LISTENERS_MAX:
+                    self.listeners_refused += 1
+                    continue
+                self._peers[peer] = max(self._peers.get(peer, 0), self._last_now)
+                self._sim_peers.add(peer)
                 continue
             if data == LISTEN_HELLO_WALL:  # the port a mission's MAVSDK is about to listen on (mavsdk_url):
                 # greeted with heartbeats until it answers, and a peer from then on (what went there before
@@ -219,15 +230,35 @@ class UdpLink:
     def destinations(self, now_ns: int, sim_peers: bool = True) -> list[Address]:
         """The remote and the live peers (forgets peers silent longer than the timeout); without the peers that
         live on sim time (missions' sockets, which announced themselves) when ``sim_peers`` is False."""
-        stale = [a for a, t in self._peers.items() if now_ns - t > self.peer_timeout_ns]
+        self._last_now = now_ns
+        stale = [a for a, t in self._peers.items() if now_ns - t > self.peer_timeout_ns and a not in self._sim_peers]
         for a in stale:
             del self._peers[a]
             log.info("%s link: forgot peer %s:%d (silent for over %.0f s)", self.name, *a, self.peer_timeout_ns / 1e9)
+        if self._sim_peers and now_ns - self._listeners_checked_ns > _LISTENER_CHECK_NS:
+            self._listeners_checked_ns = now_ns
+            self._forget_closed_listeners(now_ns)
         dests = list(self._peers) if sim_peers else [a for a in self._peers if a not in self._sim_peers]
         remote = self.config.remote
         if remote is not None and remote not in self._peers:
             dests.append(remote)
         return dests
+
+    def _forget_closed_listeners(self, now_ns: int) -> None:
+        """A listener may be silent for the whole run (it only listens), so silence alone does not end it: one
+        silent for ``peer_timeout_ns`` whose socket is no longer bound (its mission ended, or a process that
+        announced a thousand and left) is forgotten. Where ``/proc`` cannot say, listeners stay."""
+        silent = [a for a in self._sim_peers if now_ns - self._peers.get(a, 0) > self.peer_timeout_ns]
+        if not silent:
+            return
+        bound = udp_bound()
+        if bound is None:
+            return
+        for a in silent:
+            if a not in bound and ("0.0.0.0", a[1]) not in bound and ("::", a[1]) not in bound:
+                self._sim_peers.discard(a)
+                self._peers.pop(a, None)
+                log.info("%s link: forgot listener %s:%d (its socket is closed)", self.name, *a)
 
     @property
     def has_sim_peers(self) -> bool:

@@ -66,14 +66,17 @@ class Gcs:
             self.raw.append(data)
         return [m for m in (self.parser.parse_buffer(data) or []) if not isinstance(m, mavlink2.MAVLink_bad_data)]
 
-    def recv(self, kind: str, timeout_s: float = 3.0, cond: Callable[[Msg], bool] | None = None) -> Msg:
-        """The next message of type ``kind`` (and ``cond``); earlier other messages are dropped. A HEARTBEAT is the
-        autopilot's (component 1): a PX4 vehicle's camera (component 100) sends its own."""
+    def recv(
+        self, kind: str | tuple[str, ...], timeout_s: float = 3.0, cond: Callable[[Msg], bool] | None = None
+    ) -> Msg:
+        """The next message of type ``kind`` (one of them, for a tuple) and ``cond``; earlier others are dropped. A
+        HEARTBEAT is the autopilot's (component 1): a PX4 vehicle's camera (component 100) sends its own."""
+        kinds = (kind,) if isinstance(kind, str) else kind
         deadline = real_monotonic_ns() + int(timeout_s * 1e9)
         while real_monotonic_ns() < deadline:
             for m in self._read(deadline):
-                if m.get_type() == kind and (cond is None or cond(m)):
-                    if kind == "HEARTBEAT" and m.get_srcComponent() != 1:
+                if m.get_type() in kinds and (cond is None or cond(m)):
+                    if m.get_type() == "HEARTBEAT" and m.get_srcComponent() != 1:
                         continue
                     return m
         raise AssertionError(f"no {kind} within {timeout_s} s")
@@ -120,7 +123,13 @@ class Rig:
     as possible), with a MavlinkServer talking to a ``Gcs``."""
 
     def __init__(
-        self, gcs: Gcs, seed: int = 7, speed: float | None = 1.0, signing: SigningConfig | None = None, **params: float
+        self,
+        gcs: Gcs,
+        seed: int = 7,
+        speed: float | None = 1.0,
+        signing: SigningConfig | None = None,
+        trust_unsigned: Callable[[bool, tuple[str, int]], bool] | None = None,
+        **params: float,
     ) -> None:
         self.sim = QuadSim(np.random.default_rng(seed))
         self.ap = Autopilot(AutopilotConfig(params=params))
@@ -129,7 +138,8 @@ class Rig:
         self._stop = threading.Event()
         self._frame = self.sim.frame()
         self.step_s(11.0)  # estimator converged, GPS checks passed for 10 s (EKF2): global position ok, armable
-        self.server = MavlinkServer(self.ap, 0, PortsConfig(api_port_base=gcs.port, gcs_port=0), signing)
+        ports = PortsConfig(api_port_base=gcs.port, gcs_port=0)
+        self.server = MavlinkServer(self.ap, 0, ports, signing, trust_unsigned=trust_unsigned)
         self._thread: threading.Thread | None = None
 
     def step_s(self, seconds: float) -> None:

@@ -474,3 +474,33 @@ def test_reboot_restarts_the_flight_stack_in_place(copter: tuple[Rig, Client, in
     while c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result != M.MAV_RESULT_ACCEPTED:
         assert time.monotonic() < end, "not armable after the reboot"
         time.sleep(0.5)
+
+
+@pytest.mark.parametrize(
+    ("frame", "cmd", "lat", "alt", "result"),
+    [
+        (200, 16, 47.0, 10.0, M.MAV_MISSION_UNSUPPORTED_FRAME),
+        (M.MAV_FRAME_LOCAL_NED, 16, 47.0, 10.0, M.MAV_MISSION_UNSUPPORTED_FRAME),
+        (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, 31000, 47.0, 10.0, M.MAV_MISSION_UNSUPPORTED),
+        (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, 16, 95.0, 10.0, M.MAV_MISSION_INVALID_PARAM5_X),
+        (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, 16, 47.0, 90_000.0, M.MAV_MISSION_INVALID_PARAM7),
+    ],
+    ids=["frame-200", "local-ned", "unknown-command", "latitude-95", "altitude-90km"],
+)
+def test_items_ardupilot_refuses_are_refused_with_its_result(
+    copter: tuple[Rig, Client, int], frame: int, cmd: int, lat: float, alt: float, result: int
+) -> None:
+    """Issue 36, item 2, ArduCopter (``AP_Mission::mavlink_int_to_mission_cmd``): the item's frame, command and
+    location are checked as it arrives; the upload ends with ArduPilot's MAV_MISSION_RESULT, nothing taken in."""
+    rig, c, _port = copter
+    c.recv("HEARTBEAT")
+    c.conn.waypoint_count_send(2)
+    items = [(M.MAV_FRAME_GLOBAL, 16, 47.0, 0.0), (frame, cmd, lat, alt)]  # item 0: home, ignored
+    while True:
+        m = c.recv(["MISSION_REQUEST", "MISSION_ACK"])
+        if m.get_type() == "MISSION_ACK":
+            break
+        f, command, x, z = items[m.seq]
+        c.conn.mav.mission_item_send(1, 1, m.seq, f, command, 0, 1, 0, 0, 0, 0, x, 8.0, z)
+    assert m.type == result
+    assert rig.ap.mission.download() == ()

@@ -184,3 +184,49 @@ def test_ground_station_connect_sequence_then_a_ten_item_mission(gcs: Gcs, flyin
     assert complete and landed and disarmed
     n, e, _ = flying_rig.sim.pos
     assert abs(n - 4e-5 * 111_195) < 1.5 and abs(e) < 1.5, "landed at the last waypoint"
+
+
+def _upload_one(gcs: Gcs, item: tuple, kind: int = 0, float_form: bool = False) -> object:
+    """Upload a mission whose item 1 is ``item`` (item 0: a takeoff); the MISSION_ACK."""
+    items = [(REL, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, int(LAT0 * 1e7), int(LON0 * 1e7), 5.0), item]
+    gcs.send(gcs.mav.mission_count_encode(1, 1, len(items), kind))
+    while True:
+        m = gcs.recv(("MISSION_REQUEST_INT", "MISSION_ACK"), 3.0)
+        if m.get_type() == "MISSION_ACK":
+            return m
+        f, c, p1, p2, p3, p4, x, y, z = items[m.seq]
+        if float_form and m.seq == 1:
+            gcs.send(gcs.mav.mission_item_encode(1, 1, m.seq, f, c, 0, 1, p1, p2, p3, p4, x, y, z, kind))
+        else:
+            gcs.send(gcs.mav.mission_item_int_encode(1, 1, m.seq, f, c, 0, 1, p1, p2, p3, p4, x, y, z, kind))
+
+
+@pytest.mark.parametrize(
+    ("item", "float_form", "result"),
+    [
+        ((200, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, int(LAT0 * 1e7), int((LON0 + 1e-4) * 1e7), 5.0), False, 2),
+        ((M.MAV_FRAME_LOCAL_NED, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, 100_000, 0, -5.0), False, 2),
+        ((M.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT, 16, 0, 0, 0, 0, int(LAT0 * 1e7), int(LON0 * 1e7), 5.0), False, 2),
+        ((REL, 16, 0, 0, 0, 0, LAT0, LON0, 5.0), True, 2),  # an _INT frame in a float MISSION_ITEM
+        ((M.MAV_FRAME_MISSION, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, 0, 0, 5.0), False, 3),
+        ((REL, M.MAV_CMD_DO_CHANGE_SPEED, 1, 3.0, -1, 0, 0, 0, 0.0), False, 3),
+        ((REL, M.MAV_CMD_DO_SET_ROI, 7, 0, 0, 0, int(LAT0 * 1e7), int(LON0 * 1e7), 5.0), False, 6),
+        ((M.MAV_FRAME_MISSION, M.MAV_CMD_DO_SET_ROI, 3, 0, 0, 0, 0, 0, 0.0), False, 6),
+    ],
+    ids=["frame-200", "local-ned", "terrain", "int-frame-in-float-item", "waypoint-no-position",
+         "speed-with-position", "roi-mode-7", "roi-location-no-position"],
+)  # fmt: skip
+def test_items_px4_refuses_are_refused_with_px4s_result(
+    gcs: Gcs, idle_rig: Rig, item: tuple, float_form: bool, result: int
+) -> None:
+    """Issue 36, item 2: an item PX4 (``parse_mavlink_mission_item``) refuses is refused with its
+    MAV_MISSION_RESULT (UNSUPPORTED_FRAME 2, UNSUPPORTED 3, INVALID_PARAM1 6) and nothing is taken in: a frame of
+    200 was accepted and flown as AMSL, into the ground. A STATUSTEXT says why."""
+    ack = _upload_one(gcs, item, float_form=float_form)
+    assert ack.type == result  # type: ignore[attr-defined]
+    assert idle_rig.ap.mission.download() == ()
+    assert "mission refused: item 1" in gcs.recv("STATUSTEXT").text
+    # the same item in a frame PX4 takes is accepted: the refusal was the frame's
+    good = _upload_one(gcs, (REL, M.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, int(LAT0 * 1e7), int(LON0 * 1e7), 5.0))
+    assert good.type == M.MAV_MISSION_ACCEPTED  # type: ignore[attr-defined]
+    assert len(idle_rig.ap.mission.download()) == 2

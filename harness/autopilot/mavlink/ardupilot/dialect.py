@@ -68,6 +68,7 @@ from harness.autopilot.mavlink.ardupilot.streams import (
 from harness.autopilot.mavlink.commands import FORCE_MAGIC, CommandIn, CommandOutcome
 from harness.autopilot.mavlink.dialect_api import Component, DialectHost
 from harness.autopilot.mavlink.messages import MAVLinkMessage, Origin, Out, is_set
+from harness.autopilot.mavlink.mission_items import ardupilot_item_result
 from harness.autopilot.mavlink.telemetry import SENSOR_GEOFENCE, Builder, sys_status
 from harness.autopilot.params import Params
 from harness.autopilot.services import System
@@ -145,6 +146,12 @@ class CopterDialect:
         self._host = host
 
     # ------------------------------------------------------------------ identity
+    def check_mission_item(self, m: MAVLinkMessage) -> tuple[int, str]:
+        return ardupilot_item_result(m)
+
+    busy = False
+    """Nothing of ArduCopter's own goes on over several ticks."""
+
     def heartbeat(self, mav: mavlink2.MAVLink, state: VehicleState) -> MAVLinkMessage:
         shown = self.modes.shown(state.mode)
         base = _M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | _M.MAV_MODE_FLAG_STABILIZE_ENABLED
