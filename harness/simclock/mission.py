@@ -223,6 +223,7 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     """Connect, patch, run the script on the sim clock, report, and return the exit code."""
     if not spec.script.is_file():
         raise ScenarioError(f"mission script {spec.script} does not exist")
+    native.build_all()  # before it subscribes: a compile on a loaded machine must not count against the watchdog
     client = ChannelClient.connect(spec.channel, p.PeerKind.TYPE0, spec.name, vehicle=spec.vehicle)
     rt = SimRuntime(client.welcome.epoch_ns, client.welcome.phase_period_ns, spec.vehicle)
     os.environ.setdefault("HARNESS_VEHICLE", str(spec.vehicle))

@@ -91,6 +91,12 @@ def build(source: Path = SOURCE) -> Path | None:
     return target
 
 
+def build_all() -> None:
+    """Build the mission's side and the child processes' side (once per machine; no-op when cached)."""
+    if sys.platform.startswith("linux") and build() is not None:
+        build(CHILD_SOURCE)
+
+
 @dataclass(eq=False)
 class NativeClock:
     """The shim in this process: the clock thread's handle on the C threads of the patched library."""

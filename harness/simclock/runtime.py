@@ -434,10 +434,11 @@ class SimRuntime:
         self.trace.flush()
 
     def busy_threads(self) -> list[str]:
-        """Where every thread that keeps phase 0 from ending is (diagnostics)."""
+        """Where every thread and child process that keeps phase 0 from ending is, and which call it is in
+        (diagnostics: the warning before the watchdog drops the mission)."""
         with self._mu:
-            native = [f"MAVSDK's threads: {self.native.describe()}"] if self.native and self.native.busy() else []
-            return native + [f"{t.name} at {where}" for t, where in self._busy_locked()]
+            native = [self.native.describe()] if self.native and self.native.busy() else []
+            return native + [f"{t.name} at {where}{_in_kernel(t)}" for t, where in self._busy_locked()]
 
     def take_outbox(self) -> list[_Outgoing]:
         with self._mu:
@@ -768,6 +769,38 @@ class SimRuntime:
             if first_only:
                 break
         return busy
+
+
+def _in_kernel(t: threading.Thread) -> str:
+    """The system call a busy thread is in (a C call outside every patched one), for the watchdog's message."""
+    try:
+        with open(f"/proc/self/task/{t.native_id}/syscall") as f:
+            first = f.read().split(" ", 1)[0]
+    except OSError:
+        return ""
+    if first == "running" or not first.isdigit():
+        return ""
+    name = _SYSCALLS.get(int(first), f"system call {first}")
+    return f" (blocked in {name}: a C call the sim clock does not know)"
+
+
+_SYSCALLS = {
+    0: "read",
+    7: "poll",
+    23: "select",
+    202: "futex (a lock or condition variable)",
+    35: "nanosleep",
+    230: "clock_nanosleep",
+    61: "wait4",
+    45: "recvfrom",
+    47: "recvmsg",
+    43: "accept",
+    232: "epoll_wait",
+    281: "epoll_pwait",
+    34: "pause",
+    130: "sigsuspend",
+}
+"""x86-64 system call numbers of the usual blocking calls."""
 
 
 def _joins_ended(frame: FrameType, threads: list[threading.Thread]) -> bool:

@@ -47,7 +47,12 @@ static int64_t epoch_ns;
 static pthread_mutex_t cmu = PTHREAD_MUTEX_INITIALIZER;
 static int nthreads = 1;  /* threads of this process (pthread_create) */
 static int nwaiting;      /* of those, inside a wait */
-static int64_t deadlines[256]; /* the deadline of each waiting thread's slot (NO_DEADLINE: free or none) */
+#define SLOTS 64
+#define SLOT_FDS 8
+static int used[SLOTS];          /* a waiting thread holds the slot */
+static int64_t deadlines[SLOTS]; /* its deadline (NO_DEADLINE: none) */
+static struct pollfd slot_fds[SLOTS][SLOT_FDS]; /* the descriptors it waits for: the mission polls them too */
+static int slot_n[SLOTS];
 static uint64_t go_gen;   /* "G" messages received */
 static int said_wait;     /* "W" sent since the last "G" */
 static int asked;         /* "R" sent since the last "G" */
@@ -154,8 +159,10 @@ int hs_child_start(void) {
     nthreads = 1;
     nwaiting = 0;
     said_wait = asked = 0;
-    for (size_t i = 0; i < sizeof deadlines / sizeof deadlines[0]; i++)
+    for (int i = 0; i < SLOTS; i++) {
+        used[i] = slot_n[i] = 0;
         deadlines[i] = NO_DEADLINE;
+    }
     if (client >= 0) {
         say("H %lld\n", (long long)getpid());
         hear_locked(1); /* "T ns" */
@@ -177,9 +184,25 @@ static int64_t sim_now(void) { return __atomic_load_n(&now_ns, __ATOMIC_ACQUIRE)
 
 static int64_t min_deadline_locked(void) {
     int64_t d = NO_DEADLINE;
-    for (size_t i = 0; i < sizeof deadlines / sizeof deadlines[0]; i++)
-        d = deadlines[i] < d ? deadlines[i] : d;
+    for (int i = 0; i < SLOTS; i++)
+        d = used[i] && deadlines[i] < d ? deadlines[i] : d;
     return d;
+}
+
+/* "W deadline call fd:events …": the mission takes a copy of each descriptor (pidfd_getfd) and looks at them
+ * before it ends a phase, as it does for its own threads' waits: what another participant wrote to it in this
+ * phase runs this process in this phase, whatever the machine's pace. */
+static void say_wait_locked(const char *call) {
+    char line[1024];
+    int64_t d = min_deadline_locked();
+    int n = snprintf(line, sizeof line, "W %lld %s", d == NO_DEADLINE ? -1LL : (long long)d, call);
+    for (int i = 0; i < SLOTS; i++) {
+        for (int j = 0; used[i] && j < slot_n[i] && n < (int)sizeof line - 32; j++)
+            n += snprintf(line + n, sizeof line - (size_t)n, " %d:%d", slot_fds[i][j].fd, slot_fds[i][j].events);
+    }
+    n += snprintf(line + n, sizeof line - (size_t)n, "\n");
+    if (client >= 0 && raw_write(client, line, (size_t)n) < 0)
+        client = -1;
 }
 
 static int ready(struct pollfd *fds, int n) {
@@ -191,13 +214,21 @@ static int ready(struct pollfd *fds, int n) {
 }
 
 /* Block (idle for the mission) until `fds` are ready in a phase or sim time reaches `deadline`. 1: timed out. */
-static int child_wait(struct pollfd *fds, int n, int64_t deadline) {
+static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, const char *call) {
     if (n > MAX_FDS)
         n = MAX_FDS;
     pthread_mutex_lock(&cmu);
-    int slot = nwaiting++;
-    if (slot < (int)(sizeof deadlines / sizeof deadlines[0]))
+    nwaiting++;
+    int slot = -1;
+    for (int i = 0; i < SLOTS && slot < 0; i++)
+        slot = used[i] ? -1 : i;
+    if (slot >= 0) {
+        used[slot] = 1;
         deadlines[slot] = deadline;
+        slot_n[slot] = n < SLOT_FDS ? n : SLOT_FDS;
+        if (slot_n[slot])
+            memcpy(slot_fds[slot], fds, (size_t)slot_n[slot] * sizeof *fds);
+    }
     int timed_out = 0;
     for (;;) {
         if (client < 0)
@@ -209,8 +240,7 @@ static int child_wait(struct pollfd *fds, int n, int64_t deadline) {
         if (said_wait == 0 && ready(fds, n))
             break; /* ready while the process still runs in this phase */
         if (nwaiting >= nthreads && !said_wait) {
-            long long d = min_deadline_locked();
-            say("W %lld\n", d == NO_DEADLINE ? -1LL : d);
+            say_wait_locked(call);
             said_wait = 1;
         }
         uint64_t gen = go_gen;
@@ -245,11 +275,13 @@ static int child_wait(struct pollfd *fds, int n, int64_t deadline) {
         }
     }
     nwaiting--;
-    if (slot < (int)(sizeof deadlines / sizeof deadlines[0]))
-        deadlines[slot] = NO_DEADLINE;
+    if (slot >= 0)
+        used[slot] = 0;
     pthread_mutex_unlock(&cmu);
     return timed_out;
 }
+
+#define child_wait(fds, n, deadline) child_wait_in(fds, n, deadline, __func__)
 
 static int64_t ts_ns(const struct timespec *ts) { return (int64_t)ts->tv_sec * 1000000000LL + ts->tv_nsec; }
 static int64_t after(int64_t ns) { return ns > NO_DEADLINE - sim_now() ? NO_DEADLINE : sim_now() + ns; }
@@ -402,36 +434,36 @@ int select(int nfds, fd_set *r, fd_set *w, fd_set *e, struct timeval *tv) {
 
 /* A blocking read, receive or accept that would block is a wait on its descriptor (a pipe the process reads until
  * its parent closes it, multiprocessing's resource tracker). */
-static int would_block(int fd) {
+static int would_block(int fd, const char *call) {
     if (!on() || (fcntl(fd, F_GETFL) & O_NONBLOCK))
         return 0;
     struct pollfd p = {.fd = fd, .events = POLLIN};
     if (raw_poll(&p, 1, 0) != 0)
         return 0;
-    child_wait(&p, 1, NO_DEADLINE);
+    child_wait_in(&p, 1, NO_DEADLINE, call);
     return 1;
 }
 
 ssize_t read(int fd, void *b, size_t n) {
-    while (would_block(fd)) {
+    while (would_block(fd, "read")) {
     }
     return raw_read(fd, b, n);
 }
 
 ssize_t recv(int fd, void *b, size_t n, int flags) {
-    while (!(flags & MSG_DONTWAIT) && would_block(fd)) {
+    while (!(flags & MSG_DONTWAIT) && would_block(fd, "recv")) {
     }
     return syscall(SYS_recvfrom, fd, b, n, flags, NULL, NULL);
 }
 
 ssize_t recvfrom(int fd, void *b, size_t n, int flags, struct sockaddr *a, socklen_t *al) {
-    while (!(flags & MSG_DONTWAIT) && would_block(fd)) {
+    while (!(flags & MSG_DONTWAIT) && would_block(fd, "recvfrom")) {
     }
     return syscall(SYS_recvfrom, fd, b, n, flags, a, al);
 }
 
 int accept(int fd, struct sockaddr *a, socklen_t *al) {
-    while (would_block(fd)) {
+    while (would_block(fd, "accept")) {
     }
     return (int)syscall(SYS_accept, fd, a, al);
 }

@@ -78,6 +78,8 @@ typedef struct tstate {
     int child_fd;        /* its connection (-1 until it says hello, and while it execs) */
     int pidfd;           /* readable when it has exited */
     pid_t parent;        /* the child of the mission that started it (0: the mission itself) */
+    pid_t tid;           /* the kernel's id of the thread (diagnostics: which system call it is in) */
+    char call[24];       /* the call it waits in, or last waited in (diagnostics) */
 } tstate;
 
 typedef struct {
@@ -163,6 +165,8 @@ static void drain_fd(int fd) {
     }
 }
 
+static void close_child_fds_locked(tstate *t);
+
 /* Send a child "G ns" (run) or "T ns" (the time). */
 static void tell_child(tstate *t, char what) {
     if (t->child_fd < 0)
@@ -189,6 +193,7 @@ static void release_locked(tstate *t, int timed_out) {
     TRACE("release %d%s addr=%d fds=%d", t->index, timed_out ? " timeout" : "", t->addr != NULL, t->nfds);
     if (t->pid) { /* a child process runs: busy until it says it waits again */
         t->waiting = t->released = 0;
+        close_child_fds_locked(t);
         tell_child(t, 'G');
         return;
     }
@@ -238,6 +243,7 @@ static tstate *me(void) {
         t = new_state(0);
         t->asks = 1;
         t->self = pthread_self();
+        t->tid = (pid_t)syscall(SYS_gettid);
         pthread_setspecific(tkey, t);
     }
     return t;
@@ -245,13 +251,17 @@ static tstate *me(void) {
 
 /* -- the wait ---------------------------------------------------------------------------------------- */
 
+#define sim_wait(...) sim_wait_in(__VA_ARGS__, __func__)
+
 /* Block the calling thread (idle) until released: by a wake on `addr`, its descriptors becoming ready,
  * sim time reaching `deadline`, or the end of the run. `fds` are polled, never consumed. Returns 1 when
  * the wait timed out. `mu` must NOT be held; `locked` says whether the caller registered under mu already
  * (cond/futex waits register atomically with their own checks). */
-static int sim_wait(tstate *t, const struct pollfd *fds, int nfds, int64_t deadline, const void *addr, int locked) {
+static int sim_wait_in(tstate *t, const struct pollfd *fds, int nfds, int64_t deadline, const void *addr, int locked,
+                       const char *call) {
     if (!locked)
         pthread_mutex_lock(&mu);
+    snprintf(t->call, sizeof t->call, "%s", strncmp(call, "hs_", 3) == 0 ? call + 3 : call);
     if (closed) {
         /* The run is over and the process about to end: wait a little on the real clock (a spurious wake-up for
          * condition variables and futexes, which both allow one) so that no thread spins meanwhile. */
@@ -841,6 +851,7 @@ static void *trampoline(void *p) {
     pthread_once(&tkey_once, make_key);
     pthread_mutex_lock(&mu);
     s.t->self = pthread_self();
+    s.t->tid = (pid_t)syscall(SYS_gettid);
     pthread_mutex_unlock(&mu);
     pthread_setspecific(tkey, s.t);
     return s.fn(s.arg);
@@ -1052,6 +1063,37 @@ static tstate *add_child_locked(pid_t pid) {
     return t;
 }
 
+/* Close the mission's copies of a child's descriptors. */
+static void close_child_fds_locked(tstate *t) {
+    for (int i = 0; i < t->nfds; i++)
+        close(t->fds[i].fd);
+    t->nfds = 0;
+}
+
+/* A child waits for its descriptors " fd:events …": copies of them (pidfd_getfd) go into its wait, so that the clock
+ * thread releases it when one is ready before it ends a phase (release_ready_locked), as for a thread of its own.
+ * Without pidfd_getfd (an old kernel, a sandbox) the child's own "R" is all there is. */
+static void take_child_fds_locked(tstate *t, const char *rest) {
+    close_child_fds_locked(t);
+    while (t->pidfd >= 0 && rest && *rest == ' ' && t->nfds < MAX_FDS) {
+        int fd = atoi(rest + 1);
+        const char *colon = strchr(rest + 1, ':');
+        if (!colon)
+            break;
+        short events = (short)atoi(colon + 1);
+        rest = strchr(colon, ' ');
+        if (!(events & (POLLIN | POLLPRI)))
+            continue; /* a copy of a write end would keep its reader from seeing the end of the stream */
+        int copy = (int)syscall(SYS_pidfd_getfd, t->pidfd, fd, 0);
+        if (copy >= 0) {
+            fcntl(copy, F_SETFD, FD_CLOEXEC);
+            t->fds[t->nfds].fd = copy;
+            t->fds[t->nfds].events = events;
+            t->fds[t->nfds++].revents = 0;
+        }
+    }
+}
+
 static void drop_child_locked(tstate *t) {
     for (tstate **pp = &threads; *pp; pp = &(*pp)->next) {
         if (*pp == t) {
@@ -1060,6 +1102,7 @@ static void drop_child_locked(tstate *t) {
         }
     }
     TRACE("child %d exited", t->index);
+    close_child_fds_locked(t);
     /* Its parent, if a child of the mission too, runs now (SIGCHLD is on its way to it: when the parent takes the
      * "G", the signal has been handled and whatever its handler wrote is ready): in this phase, at any pace. */
     for (tstate *p = threads; t->parent && p; p = p->next) {
@@ -1097,6 +1140,12 @@ static void child_says_locked(tstate *t, int fd, const char *line) {
         t->waiting = 1;
         t->released = t->pending = t->timed_out = 0;
         t->deadline = v < 0 ? NO_DEADLINE : v;
+        const char *call = strchr(line + 2, ' ');
+        if (call) {
+            size_t k = strcspn(call + 1, " \n");
+            snprintf(t->call, sizeof t->call, "%.*s", (int)(k < sizeof t->call ? k : sizeof t->call - 1), call + 1);
+            take_child_fds_locked(t, call + 1 + k);
+        }
         if (gate_open && t->deadline <= now_ns)
             release_locked(t, 1);
         poke_locked();
@@ -1178,8 +1227,13 @@ static void *serve_children(void *arg) {
                     strcat(static_warned, "\n");
                     fprintf(stderr,
                             "harness mission: %s is statically linked: nothing can put it on the sim clock; it runs on "
-                            "the wall clock and holds phase 0 until it exits\n",
+                            "the wall clock, outside the phases\n",
                             exe);
+                }
+                if (t->pid && t->child_fd < 0 && !t->waiting && t->tracked && strstr(static_warned, exe) &&
+                    is_static(t->pid, exe, sizeof exe)) {
+                    t->tracked = 0; /* no longer waited for: a server (mavsdk_server) would hold phase 0 for good */
+                    poke_locked();
                 }
             }
         }
@@ -1213,6 +1267,7 @@ static void *serve_children(void *arg) {
                 close(t->child_fd);
                 t->child_fd = -1;
                 t->waiting = t->released = t->pending = 0;
+                close_child_fds_locked(t);
                 continue;
             }
             buf[k] = 0;
@@ -1532,15 +1587,69 @@ void hs_close(void) {
     pthread_mutex_unlock(&mu);
 }
 
-/* A description of every thread, for diagnostics: "tracked waiting released pending nfds deadline;" */
+/* The system call thread `tid` of process `pid` is in now ("running" when none), for diagnostics. */
+static void syscall_of(pid_t pid, pid_t tid, char *out, size_t cap) {
+    static const struct {
+        long nr;
+        const char *name;
+    } names[] = {{SYS_read, "read"}, {SYS_write, "write"}, {SYS_poll, "poll"}, {SYS_ppoll, "ppoll"},
+                 {SYS_select, "select"}, {SYS_pselect6, "pselect6"}, {SYS_epoll_wait, "epoll_wait"},
+                 {SYS_epoll_pwait, "epoll_pwait"}, {SYS_futex, "futex (a lock or condition variable)"},
+                 {SYS_nanosleep, "nanosleep"}, {SYS_clock_nanosleep, "clock_nanosleep"}, {SYS_wait4, "wait4"},
+                 {SYS_recvfrom, "recvfrom"}, {SYS_recvmsg, "recvmsg"}, {SYS_accept, "accept"}, {SYS_accept4, "accept4"},
+                 {SYS_connect, "connect"}, {SYS_pause, "pause"}, {SYS_rt_sigsuspend, "sigsuspend"}};
+    char path[64], buf[128];
+    snprintf(path, sizeof path, "/proc/%d/task/%d/syscall", (int)pid, (int)tid);
+    snprintf(out, cap, "?");
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0)
+        return;
+    ssize_t n = read(fd, buf, sizeof buf - 1);
+    close(fd);
+    if (n <= 0)
+        return;
+    buf[n] = 0;
+    if (strncmp(buf, "running", 7) == 0) {
+        snprintf(out, cap, "running");
+        return;
+    }
+    long nr = atol(buf);
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
+        if (names[i].nr == nr) {
+            snprintf(out, cap, "in %s", names[i].name);
+            return;
+        }
+    }
+    snprintf(out, cap, "in system call %ld", nr);
+}
+
+/* A description of every thread and child process that keeps phase 0 open (all of them with `all`), for the
+ * runtime's warning before the watchdog drops the mission: which call each is in. */
 int hs_describe(char *out, int cap) {
     pthread_mutex_lock(&mu);
     int n = 0;
     out[0] = 0;
-    for (tstate *th = threads; th && n < cap - 80; th = th->next) {
-        n += snprintf(out + n, (size_t)(cap - n), "%s%s%s%s fds=%d deadline=%lld;", th->tracked ? "lib" : "caller",
-                      th->waiting ? " waiting" : " busy", th->released ? " released" : "", th->pending ? " pending" : "",
-                      th->nfds, (long long)(th->deadline == NO_DEADLINE ? -1 : th->deadline));
+    for (tstate *th = threads; th && n < cap - 200; th = th->next) {
+        int busy = th->tracked && (!th->waiting || th->released);
+        if (!busy)
+            continue;
+        char where[64], exe[256] = "";
+        if (th->pid) {
+            syscall_of(th->pid, th->pid, where, sizeof where);
+            char path[64];
+            snprintf(path, sizeof path, "/proc/%d/exe", (int)th->pid);
+            ssize_t k = readlink(path, exe, sizeof exe - 1);
+            exe[k > 0 ? k : 0] = 0;
+            n += snprintf(out + n, (size_t)(cap - n), "child process %d (%s) busy, %s%s%s", (int)th->pid, exe, where,
+                          th->child_fd < 0 ? ", not (yet) joined" : "", th->call[0] ? ", last waited in " : "");
+        } else {
+            syscall_of(getpid(), th->tid, where, sizeof where);
+            n += snprintf(out + n, (size_t)(cap - n), "C thread %d (tid %d) busy, %s%s", th->index, (int)th->tid, where,
+                          th->call[0] ? ", last waited in " : "");
+        }
+        if (th->call[0])
+            n += snprintf(out + n, (size_t)(cap - n), "%s", th->call);
+        n += snprintf(out + n, (size_t)(cap - n), "; ");
     }
     pthread_mutex_unlock(&mu);
     return n;
