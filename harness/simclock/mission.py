@@ -27,7 +27,7 @@ from typing import NoReturn
 from harness.core.clock import NS_PER_S
 from harness.core.endpoints import VehicleEndpoints
 from harness.core.errors import ScenarioError
-from harness.simclock import iowait, mavsdk_compat, native, patch
+from harness.simclock import iowait, mavsdk_compat, native, patch, simsocket
 from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
@@ -153,6 +153,13 @@ class _WakeThread(threading.Thread):
             self.rt.want_phase()
 
 
+def _forget_python() -> None:
+    """In a process forked from the mission without exec: no Python-level sim clock (there is no clock thread);
+    its time and waits are C calls, on ``simchild.c``'s side of the mission's lockstep."""
+    simsocket.uninstall()
+    patch.uninstall()
+
+
 def _delivery(msg: p.Deliver) -> Delivery:
     pk = msg.packet
     return Delivery(msg.at_ns, pk.src, pk.dst, pk.port, pk.payload, msg.rssi_dbm)
@@ -234,7 +241,7 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
 
     udp.install(rt, ep)  # sockets: sim-time waits, MAVLink to this vehicle, UDP to 10.42.0.x on the radio
     # C-level waits and clocks of the interpreter and of every C extension (docs/simclock.md)
-    rt.native = native.attach_process(rt.epoch_ns, rt.now_ns())
+    rt.native = native.attach_process(rt.epoch_ns, rt.now_ns(), _forget_python)
     forced = os.environ.get("HARNESS_MAVSDK_API") or None
     if forced is not None and forced not in set(mavsdk_compat.MavsdkApi):
         choices = ", ".join(a.value for a in mavsdk_compat.MavsdkApi if a.value)

@@ -23,6 +23,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -214,11 +215,14 @@ def _shim(epoch_ns: int, now_ns: int) -> NativeClock | None:
     return _ATTACHED
 
 
-def attach_process(epoch_ns: int, now_ns: int) -> NativeClock | None:
+def attach_process(epoch_ns: int, now_ns: int, forget_python: Callable[[], None]) -> NativeClock | None:
     """Put the C-level waits of the whole process on the sim clock (``hs_patch_process``): the interpreter's timed
     lock waits (``Lock.acquire(timeout=…)``, ``SimpleQueue.get(timeout=…)``), and the clock reads, sleeps and timed
     waits of every C extension and library it loads, now or later (libzmq's poll, a C function called through
-    ctypes). Idempotent; None where the shim cannot be built."""
+    ctypes). Idempotent; None where the shim cannot be built.
+
+    ``forget_python`` runs first thing in a process forked without exec (multiprocessing's fork): it takes the
+    Python-level patches out, so that the child's time and waits are all C calls, which ``simchild.c`` has."""
     clock = _shim(epoch_ns, now_ns)
     if clock is None:
         return None
@@ -226,14 +230,14 @@ def attach_process(epoch_ns: int, now_ns: int) -> NativeClock | None:
     clock.patched += int(clock.lib.hs_patch_process())
     log.debug("the process: %d calls on the sim clock", clock.patched)
     if child_lib is not None:
-        _children(clock, epoch_ns, child_lib)
+        _children(clock, epoch_ns, child_lib, forget_python)
     return clock
 
 
 _CHILD_ENV = ("HARNESS_SIMTIME_PRELOADED", "HARNESS_SIMTIME_PARENT", "HARNESS_SIMTIME_EPOCH")
 
 
-def _children(clock: NativeClock, epoch_ns: int, child_lib: Path) -> None:
+def _children(clock: NativeClock, epoch_ns: int, child_lib: Path, forget_python: Callable[[], None]) -> None:
     """Child processes join this process's lockstep (``simchild.c``): programs it starts get the child side in
     ``LD_PRELOAD`` and the address of the children's server (``hs_children``) in their environment; a process it
     forks without exec switches to the child side in its first moment (``hs_become_child``)."""
@@ -246,10 +250,7 @@ def _children(clock: NativeClock, epoch_ns: int, child_lib: Path) -> None:
     os.environ.update(zip(_CHILD_ENV, ("1", name, str(epoch_ns)), strict=True))
 
     def become_child() -> None:
-        from harness.simclock import patch, simsocket
-
-        simsocket.uninstall()
-        patch.uninstall()  # Python's own time and waits go to the C level, where simchild.c has them
+        forget_python()
         if not clock.lib.hs_become_child(str(child_lib).encode()):
             log.warning("a forked process could not join the mission's lockstep: it runs on the wall clock")
 

@@ -176,8 +176,7 @@ def _signal_timers(rt: SimRuntime) -> dict[str, Callable[..., Any]]:
     def sim_getitimer(which: int) -> tuple[float, float]:
         if which != signal.ITIMER_REAL:
             return getitimer(which)
-        with rt._mu:
-            return to_s(rt.get_itimer_locked())
+        return to_s(rt.get_itimer())
 
     def sim_alarm(seconds: int) -> int:
         left, _ = rt.set_itimer(int(seconds) * NS_PER_S, 0)

@@ -265,12 +265,17 @@ class SimRuntime:
         """Arm (``delay_ns`` > 0) or disarm the process's real-time signal timer on sim time; returns what was left of
         the old one (delay, interval), as ``setitimer`` does."""
         with self._mu:
-            old = self.get_itimer_locked()
+            old = self._get_itimer_locked()
             self.itimer = (self._now_ns + delay_ns, max(0, interval_ns)) if delay_ns > 0 else None
         self._poke()
         return old
 
-    def get_itimer_locked(self) -> tuple[int, int]:
+    def get_itimer(self) -> tuple[int, int]:
+        """What is left of the signal timer (delay, interval) in ns; (0, 0) when it is not armed."""
+        with self._mu:
+            return self._get_itimer_locked()
+
+    def _get_itimer_locked(self) -> tuple[int, int]:
         if self.itimer is None:
             return 0, 0
         deadline, interval = self.itimer
