@@ -1,6 +1,6 @@
-"""Build hook beside pyproject.toml: the per-vehicle core compiled to C extensions by mypyc, the sim-time shim
-for C libraries (``harness/simclock/simtime.c``) compiled into the package, and the example missions
-(``missions/``) packaged as ``harness.examples``.
+"""Build hook beside pyproject.toml: the per-vehicle core compiled to C extensions by mypyc, the sim-time shims
+for C libraries and child processes (``harness/simclock/simtime.c``, ``simchild.c``) compiled into the package,
+and the example missions (``missions/``) packaged as ``harness.examples``.
 
 The modules are ``harness.core.native.MODULES`` (read here by path: the package is not installed yet). They
 are compiled when the package is built or installed (``pip install -e .``, as ``dev.py`` does; in place:
@@ -10,10 +10,11 @@ import (a source edited since the build runs as Python, with a warning). With no
 ``HARNESS_PURE=1`` at build time, or a failed compile, the install still succeeds, pure Python, and says so
 once.
 
-The shim is a plain shared object (loaded with ctypes, not imported), named by its source's hash
-(``harness.simclock.shim``); it is built whatever ``HARNESS_PURE`` says (it puts MAVSDK's threads on
-the sim clock, it is not the per-vehicle core). Without a compiler the package still installs: the shim is then
-compiled at run time into the user's cache where a compiler exists, else MAVSDK keeps the wall clock.
+The shims are plain shared objects (loaded with ctypes or LD_PRELOAD, not imported), named by their source's
+hash (``harness.simclock.shim``); they are built whatever ``HARNESS_PURE`` says (they put MAVSDK's threads, a
+mission's C-level waits and its children on the sim clock; they are not the per-vehicle core). Without a compiler
+the package still installs: the shims are then compiled at run time into the user's cache where a compiler
+exists, else those keep the wall clock.
 """
 
 from __future__ import annotations
@@ -95,8 +96,8 @@ def _drop_leftovers() -> None:
     keep = {*NATIVE.MODULES, f"{NATIVE.GROUP}__mypyc"}
     suffixes = tuple(importlib.machinery.EXTENSION_SUFFIXES)
     for path in (ROOT / "harness").rglob("*"):
-        if path.name.startswith(SHIM.PREFIX):
-            continue  # the sim-time shim (not a Python module): _build_shim keeps the current one only
+        if path.name.startswith(tuple(f"{source.stem}-" for source in SHIM.SOURCES)):
+            continue  # a sim-time shim (not a Python module): _build_shim keeps the current one only
         if path.name.endswith(suffixes):
             name = path.name[: -len(next(s for s in suffixes if path.name.endswith(s)))]
             module = ".".join((*path.relative_to(ROOT).parent.parts, name))
@@ -114,9 +115,10 @@ class BuildNative(build_ext):
         self.distribution.ext_modules = list(_extensions())
         super().finalize_options()
 
-    _shim: Path | None = None
+    _shims: list[Path]
 
     def run(self) -> None:
+        self._shims = []
         self._build_shim()
         if not self.extensions:
             return
@@ -140,22 +142,24 @@ class BuildNative(build_ext):
         return NATIVE.MANIFEST if self._inplace() else Path(self.build_lib) / "harness" / NATIVE.MANIFEST.name
 
     def _build_shim(self) -> None:
-        """``simtime.c`` compiled beside itself in the package (``simtime-<hash>.so``); a failure is one line."""
+        """The sim-time shims (``simtime.c``, ``simchild.c``) compiled beside their sources in the package
+        (``<stem>-<hash>.so``); a failure is one line."""
         folder = SHIM.SOURCE.parent if self._inplace() else Path(self.build_lib) / "harness" / "simclock"
-        target = folder / SHIM.shim_name()
-        for old in folder.glob(f"{SHIM.PREFIX}*.so"):
-            if old != target:
-                old.unlink()  # a build of an earlier simtime.c: never loaded, removed
-        why = None if target.is_file() else SHIM.compile_shim(target)
-        if why is None:
-            self._shim = target
-            _say(f"built the sim-time shim for MAVSDK ({target.name})")
-        else:
-            _say(f"{why}: the sim-time shim is not in the package (built at run time if a compiler is there then)")
+        for source in SHIM.SOURCES:
+            target = folder / SHIM.shim_name(source)
+            for old in folder.glob(f"{source.stem}-*.so"):
+                if old != target:
+                    old.unlink()  # a build of an earlier source: never loaded, removed
+            why = None if target.is_file() else SHIM.compile_shim(target, source)
+            if why is None:
+                self._shims.append(target)
+                _say(f"built the sim-time shim {target.name}")
+            else:
+                _say(f"{why}: {source.name} is not built into the package (built at run time if a compiler is there)")
 
     def get_outputs(self) -> list[str]:
         outputs = [*super().get_outputs(), str(self._manifest())] if self.extensions else super().get_outputs()
-        return [*outputs, str(self._shim)] if self._shim is not None else outputs
+        return [*outputs, *map(str, getattr(self, "_shims", []))]
 
 
 # A stand-in until build_ext runs mypyc: the package has extension modules (a platform wheel, build_ext runs).

@@ -127,8 +127,9 @@ def _same_flight(run: RunRecord, reference: RunRecord) -> None:
 
 def test_the_wheel_carries_what_a_run_needs(dist: tuple[Path, Path]) -> None:
     names = zipfile.ZipFile(dist[0]).namelist()
-    assert "harness/simclock/simtime.c" in names
-    assert any(re.fullmatch(r"harness/simclock/simtime-[0-9a-f]{16}\.so", n) for n in names), "the built shim"
+    for shim in ("simtime", "simchild"):
+        assert f"harness/simclock/{shim}.c" in names
+        assert any(re.fullmatch(rf"harness/simclock/{shim}-[0-9a-f]{{16}}\.so", n) for n in names), f"{shim} built"
     assert {"harness/py.typed", "harness/examples/swarm_demo.py", "harness/examples/takeoff_and_land.py"} <= set(names)
     assert "harness/autopilot/params_data/copter_params.tsv" in names
     assert any(n.startswith("harness/fdm/models/") and n.endswith(".xml") for n in names), "the JSBSim model"

@@ -127,7 +127,7 @@ def on_sim_clock() -> bool:
     rt = current()
     if rt is None or os.environ.get("HARNESS_MAVSDK_CLOCK", "sim") == "wall":
         return False
-    if rt.native is not None:
+    if native.attached("libcmavsdk"):
         return True
     importlib.import_module("mavsdk.cmavsdk_loader")  # loads libcmavsdk.so
     trace_dir = os.environ.get("HARNESS_SIMTIME_TRACE_DIR")

@@ -27,7 +27,7 @@ from typing import NoReturn
 from harness.core.clock import NS_PER_S
 from harness.core.endpoints import VehicleEndpoints, sysid
 from harness.core.errors import ScenarioError
-from harness.simclock import mavsdk_compat, patch
+from harness.simclock import iowait, mavsdk_compat, native, patch, simsocket
 from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
@@ -84,6 +84,8 @@ class _ClockThread(threading.Thread):
         self.said_bye.acquire()
 
     def run(self) -> None:
+        if self.rt.native is not None:
+            self.rt.native.set_wall()  # the clock thread's own waits are on the wall clock, in every library
         try:
             while True:
                 for msg in self.client.recv():
@@ -128,6 +130,34 @@ class _ClockThread(threading.Thread):
         # Give the script a moment to finish on its own (its waits were all released), then end it.
         self.rt.wall.sleep_ns(2 * NS_PER_S)
         self.hooks.end_process(EXIT_RUN_ENDED)
+
+
+class _WakeThread(threading.Thread):
+    """Asks the channel for a phase when a C-level wait of the process became ready between phases (the shim's
+    ``want_fd``): what wakes a Python thread's wait does so itself (``SimRuntime.want_phase``)."""
+
+    def __init__(self, rt: SimRuntime, fd: int) -> None:
+        super().__init__(name=f"{INFRA_THREAD_PREFIX}wake", daemon=True)
+        self.rt = rt
+        self.fd = fd
+
+    def run(self) -> None:
+        if self.rt.native is not None:
+            self.rt.native.set_wall()
+        while not self.rt.closed:
+            iowait.real_select([self.fd], [], [], None)
+            try:
+                os.read(self.fd, 8)
+            except BlockingIOError:
+                continue
+            self.rt.want_phase()
+
+
+def _forget_python() -> None:
+    """In a process forked from the mission without exec: no Python-level sim clock (there is no clock thread);
+    its time and waits are C calls, on ``simchild.c``'s side of the mission's lockstep."""
+    simsocket.uninstall()
+    patch.uninstall()
 
 
 def _delivery(msg: p.Deliver) -> Delivery:
@@ -200,6 +230,7 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     """Connect, patch, run the script on the sim clock, report, and return the exit code."""
     if not spec.script.is_file():
         raise ScenarioError(f"mission script {spec.script} does not exist")
+    native.build_all()  # before it subscribes: a compile on a loaded machine must not count against the watchdog
     client = ChannelClient.connect(spec.channel, p.PeerKind.TYPE0, spec.name, vehicle=spec.vehicle)
     rt = SimRuntime(client.welcome.epoch_ns, client.welcome.phase_period_ns, spec.vehicle)
     os.environ.setdefault("HARNESS_VEHICLE", str(spec.vehicle))
@@ -209,6 +240,8 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     from harness.simclock import udp
 
     udp.install(rt, ep)  # sockets: sim-time waits, MAVLink to this vehicle, UDP to 10.42.0.x on the radio
+    # C-level waits and clocks of the interpreter and of every C extension (docs/simclock.md)
+    rt.native = native.attach_process(rt.epoch_ns, rt.now_ns(), _forget_python)
     forced = os.environ.get("HARNESS_MAVSDK_API") or None
     if forced is not None and forced not in set(mavsdk_compat.MavsdkApi):
         choices = ", ".join(a.value for a in mavsdk_compat.MavsdkApi if a.value)
@@ -227,6 +260,8 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     trace_dir = os.environ.get("HARNESS_SIMTIME_TRACE_DIR")
     if trace_dir:  # every end of phase 0 and why each thread counted idle, beside MAVSDK's (docs/simclock.md)
         rt.trace = open(os.path.join(trace_dir, f"simclock-{spec.vehicle}.trace"), "w")  # noqa: SIM115
+    if rt.native is not None:  # before the clock thread: no phase has begun, so Thread.start's wait is a real one
+        _WakeThread(rt, rt.native.want_fd()).start()
     clock = _ClockThread(client, rt, hooks)
     clock.start()
     rt.wait_first_phase()
@@ -237,6 +272,8 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
         for t in _script_threads():  # a normal end waits for the script's own threads, as Python does,
             while t.is_alive():  # looking at a phase (a sim-time wait), not whenever the OS ran this thread
                 time.sleep(rt.phase_period_ns / NS_PER_S)
+    if rt.native is not None:
+        rt.native.set_wall()  # what the main thread waits for from now on is the clock thread's BYE, on the wall clock
     clock.script_done = True
     clock.exit_code = code
     rt.thread_done()  # the phase ends once the library threads are idle too, and answers BYE (the clock thread)

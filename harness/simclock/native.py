@@ -20,15 +20,23 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.simclock.shim import build
+from harness.simclock.shim import CHILD_SOURCE, build
 
 log = logging.getLogger(__name__)
 
 NO_DEADLINE = (1 << 63) - 1
+
+
+def build_all() -> None:
+    """Build the mission's side and the child processes' side (once per machine; no-op when cached)."""
+    if sys.platform.startswith("linux") and build() is not None:
+        build(CHILD_SOURCE)
 
 
 @dataclass(eq=False)
@@ -89,6 +97,20 @@ class NativeClock:
     def close(self) -> None:
         self.lib.hs_close()
 
+    def set_wall(self, wall: bool = True) -> None:
+        """The calling thread is the harness's own (the clock thread; the main thread once the script has ended):
+        its clock and waits stay real in every library the shim patched."""
+        self.lib.hs_set_wall(int(wall))
+
+    def interrupt(self, ident: int) -> bool:
+        """End the wait of thread ``ident`` inside the shim for a signal (its call returns EINTR)."""
+        return bool(self.lib.hs_interrupt(ident))
+
+    def want_fd(self) -> int:
+        """An eventfd, readable when a wait outside MAVSDK's core became ready between phases: the mission must ask
+        the channel for a phase (WAKE), as for a Python thread's wait (``SimRuntime.want_phase``)."""
+        return int(self.lib.hs_want_fd())
+
     def describe(self) -> str:
         buf = ctypes.create_string_buffer(8192)
         self.lib.hs_describe(buf, len(buf))
@@ -109,30 +131,93 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.hs_wait_library_idle.argtypes = [i64]
     lib.hs_patch.argtypes = [ctypes.c_char_p]
     lib.hs_describe.argtypes = [ctypes.c_char_p, ctypes.c_int]
+    lib.hs_set_wall.argtypes = [ctypes.c_int]
+    lib.hs_interrupt.argtypes = [u64]
+    lib.hs_children.argtypes = [ctypes.c_char_p]
+    lib.hs_become_child.argtypes = [ctypes.c_char_p]
     return lib
 
 
 _ATTACHED: NativeClock | None = None
+_LIBRARIES: set[str] = set()
+
+
+def _shim(epoch_ns: int, now_ns: int) -> NativeClock | None:
+    """The shim loaded and configured in this process (once); None where it cannot be built."""
+    global _ATTACHED
+    if _ATTACHED is None:
+        if not sys.platform.startswith("linux"):
+            return None
+        path = build()
+        if path is None:
+            return None
+        _ATTACHED = NativeClock(_load(path), 0)
+    _ATTACHED.lib.hs_configure(epoch_ns, now_ns)
+    return _ATTACHED
+
+
+def attach_process(epoch_ns: int, now_ns: int, forget_python: Callable[[], None]) -> NativeClock | None:
+    """Put the C-level waits of the whole process on the sim clock (``hs_patch_process``): the interpreter's timed
+    lock waits (``Lock.acquire(timeout=…)``, ``SimpleQueue.get(timeout=…)``), and the clock reads, sleeps and timed
+    waits of every C extension and library it loads, now or later (libzmq's poll, a C function called through
+    ctypes). Idempotent; None where the shim cannot be built.
+
+    ``forget_python`` runs first thing in a process forked without exec (multiprocessing's fork): it takes the
+    Python-level patches out, so that the child's time and waits are all C calls, which ``simchild.c`` has."""
+    clock = _shim(epoch_ns, now_ns)
+    if clock is None:
+        return None
+    child_lib = build(CHILD_SOURCE)  # before the process's own waits for a child (the compiler) are sim-time waits
+    clock.patched += int(clock.lib.hs_patch_process())
+    log.debug("the process: %d calls on the sim clock", clock.patched)
+    if child_lib is not None:
+        _children(clock, epoch_ns, child_lib, forget_python)
+    return clock
+
+
+_CHILD_ENV = ("HARNESS_SIMTIME_PRELOADED", "HARNESS_SIMTIME_PARENT", "HARNESS_SIMTIME_EPOCH")
+
+
+def _children(clock: NativeClock, epoch_ns: int, child_lib: Path, forget_python: Callable[[], None]) -> None:
+    """Child processes join this process's lockstep (``simchild.c``): programs it starts get the child side in
+    ``LD_PRELOAD`` and the address of the children's server (``hs_children``) in their environment; a process it
+    forks without exec switches to the child side in its first moment (``hs_become_child``)."""
+    name = f"harness-simtime-{os.getpid()}-{os.urandom(4).hex()}"
+    if not clock.lib.hs_children(name.encode()):
+        log.warning("cannot listen for child processes (%s): they stay on the wall clock", name)
+        return
+    preload = os.environ.get("LD_PRELOAD", "")
+    os.environ["LD_PRELOAD"] = f"{child_lib} {preload}".strip()
+    os.environ.update(zip(_CHILD_ENV, ("1", name, str(epoch_ns)), strict=True))
+
+    def become_child() -> None:
+        forget_python()
+        if not clock.lib.hs_become_child(str(child_lib).encode()):
+            log.warning("a forked process could not join the mission's lockstep: it runs on the wall clock")
+
+    os.register_at_fork(after_in_child=become_child)
+
+
+def attached(library: str) -> bool:
+    """Whether :func:`attach` has put ``library`` on the sim clock in this process."""
+    return library in _LIBRARIES
 
 
 def attach(library: str, epoch_ns: int, now_ns: int) -> NativeClock | None:
-    """Put the threads of the loaded library whose path contains ``library`` on the sim clock.
+    """Put the threads of the loaded library whose path contains ``library`` on the sim clock: its clock, waits,
+    I/O and threads (MAVSDK's core, whose threads take part in the idle decision).
 
     Idempotent; None when the shim cannot be built (no compiler) or the library has nothing to patch."""
-    global _ATTACHED
-    if _ATTACHED is not None:
-        return _ATTACHED
-    if not sys.platform.startswith("linux"):
+    clock = _shim(epoch_ns, now_ns)
+    if clock is None:
         return None
-    path = build()
-    if path is None:
-        return None
-    lib = _load(path)
-    lib.hs_configure(epoch_ns, now_ns)
-    patched = int(lib.hs_patch(library.encode()))
+    if library in _LIBRARIES:
+        return clock
+    patched = int(clock.lib.hs_patch(library.encode()))
     if patched == 0:
         log.warning("%s is not loaded or imports nothing to patch: its threads stay on the wall clock", library)
         return None
     log.debug("%s: %d calls on the sim clock", library, patched)
-    _ATTACHED = NativeClock(lib, patched)
-    return _ATTACHED
+    _LIBRARIES.add(library)
+    clock.patched += patched
+    return clock

@@ -15,6 +15,7 @@ import math
 import os
 import queue as _queue
 import selectors
+import signal
 import sys
 import threading
 import time
@@ -29,6 +30,8 @@ from harness.simclock.installed import INSTALLED
 from harness.simclock.runtime import SimRuntime, Waiter
 
 _originals: dict[tuple[object, str], Any] = {}
+_SIM_CLOCKS = ("CLOCK_MONOTONIC", "CLOCK_MONOTONIC_RAW", "CLOCK_MONOTONIC_COARSE", "CLOCK_BOOTTIME", "CLOCK_UPTIME")
+_WALL_CLOCKS = ("CLOCK_REALTIME", "CLOCK_REALTIME_COARSE", "CLOCK_TAI")
 
 
 def _set(owner: object, name: str, value: object) -> None:
@@ -73,7 +76,25 @@ def install(rt: SimRuntime) -> None:
             raise ValueError("sleep length must be non-negative")
         rt.sleep_ns(round(seconds * NS_PER_S))
 
+    sim_clocks = {getattr(time, n) for n in _SIM_CLOCKS if hasattr(time, n)}
+    wall_clocks = {getattr(time, n) for n in _WALL_CLOCKS if hasattr(time, n)}
+    clock_gettime_ns = time.clock_gettime_ns
+
+    def sim_clock_gettime_ns(clock_id: int) -> int:
+        """Raw clock reads: the monotonic clocks read sim time, the wall clocks the run's epoch plus sim time (as
+        ``simtime.c`` gives C code); CPU-time clocks stay real."""
+        if clock_id in sim_clocks:
+            return sim_mono_ns()
+        if clock_id in wall_clocks:
+            return sim_time_ns()
+        return clock_gettime_ns(clock_id)
+
+    def sim_clock_gettime(clock_id: int) -> float:
+        return sim_clock_gettime_ns(clock_id) / NS_PER_S
+
     for name, fn in {
+        "clock_gettime": sim_clock_gettime,
+        "clock_gettime_ns": sim_clock_gettime_ns,
         "time": sim_time,
         "time_ns": sim_time_ns,
         "monotonic": sim_mono,
@@ -94,6 +115,9 @@ def install(rt: SimRuntime) -> None:
 
     _set(_dt, "datetime", _make_datetime(rt))
     _set(_dt, "date", _make_date(rt))
+
+    for name, fn in _signal_timers(rt).items():
+        _set(signal, name, fn)
 
     _set(threading.Condition, "wait", _make_condition_wait(rt))
     _set(threading.Condition, "notify", _make_condition_notify(rt))
@@ -128,6 +152,37 @@ def uninstall() -> None:
 def patched_names() -> Mapping[str, str]:
     """What is patched now (for tests and ``docs/simclock.md``)."""
     return {f"{getattr(o, '__name__', o)}.{n}": repr(v) for (o, n), v in _originals.items()}
+
+
+# --- signal timers ---------------------------------------------------------------------------------
+
+
+def _signal_timers(rt: SimRuntime) -> dict[str, Callable[..., Any]]:
+    """``signal.setitimer(ITIMER_REAL, …)``, ``getitimer`` and ``alarm`` on sim time (``SimRuntime.set_itimer``):
+    SIGALRM reaches the main thread at the first phase at or after the deadline. The CPU-time timers
+    (``ITIMER_VIRTUAL``, ``ITIMER_PROF``) stay real."""
+    setitimer, getitimer = signal.setitimer, signal.getitimer
+
+    def to_s(pair: tuple[int, int]) -> tuple[float, float]:
+        return pair[0] / NS_PER_S, pair[1] / NS_PER_S
+
+    def sim_setitimer(which: int, seconds: float, interval: float = 0.0) -> tuple[float, float]:
+        if which != signal.ITIMER_REAL:
+            return setitimer(which, seconds, interval)
+        if seconds < 0 or interval < 0:
+            return setitimer(which, seconds, interval)  # Python's own error
+        return to_s(rt.set_itimer(round(seconds * NS_PER_S), round(interval * NS_PER_S)))
+
+    def sim_getitimer(which: int) -> tuple[float, float]:
+        if which != signal.ITIMER_REAL:
+            return getitimer(which)
+        return to_s(rt.get_itimer())
+
+    def sim_alarm(seconds: int) -> int:
+        left, _ = rt.set_itimer(int(seconds) * NS_PER_S, 0)
+        return math.ceil(left / NS_PER_S) if left else 0
+
+    return {"setitimer": sim_setitimer, "getitimer": sim_getitimer, "alarm": sim_alarm}
 
 
 # --- thread pools --------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ import collections
 import logging
 import os
 import select
+import signal
 import sys
 import threading
 from collections.abc import Callable
@@ -68,6 +69,9 @@ class Waiter:
     """For event loops: how to wake it (write to its self-pipe) instead of releasing ``lock``."""
     released: bool = False
     timed_out: bool = False
+    interrupted: bool = False
+    """Released because a signal timer fired for its thread (``signal.setitimer``): a sleep goes on after the
+    handler, as Python's does (PEP 475)."""
     rfds: tuple[int, ...] = ()
     wfds: tuple[int, ...] = ()
     """For I/O waits (``iowait``): the descriptors it waits for, polled when MAVLink settles."""
@@ -146,6 +150,8 @@ class SimRuntime:
         self.trace: TextIO | None = None
         """Where every phase 0 that ends is written, with why each thread counted idle (diagnostics)."""
         self.native: NativeClock | None = None
+        self.itimer: tuple[int, int] | None = None
+        """``signal.setitimer(ITIMER_REAL, …)`` on sim time: (deadline, interval) in ns; SIGALRM at that phase."""
         """The C threads of a library on the sim clock (MAVSDK's core, ``native.attach``): they take part in the
         idle decision, and what they send the vehicle is settled like the script's own MAVLink."""
 
@@ -245,12 +251,57 @@ class SimRuntime:
 
     def _release_due_locked(self, t_ns: int) -> bool:
         """Second round: the timed waits that fell due, once the I/O of this tick is handled."""
+        if self.itimer is not None and self.itimer[0] <= t_ns:
+            self._fire_itimer_locked(t_ns)
+            return True
         due = [w for w in self._timed if not w.released and w.deadline_ns is not None and w.deadline_ns <= t_ns]
         for w in due:
             w.timed_out = True
             self._release_locked(w)
         self.stats.waits_released += len(due)
         return bool(due)
+
+    def set_itimer(self, delay_ns: int, interval_ns: int) -> tuple[int, int]:
+        """Arm (``delay_ns`` > 0) or disarm the process's real-time signal timer on sim time; returns what was left of
+        the old one (delay, interval), as ``setitimer`` does."""
+        with self._mu:
+            old = self._get_itimer_locked()
+            self.itimer = (self._now_ns + delay_ns, max(0, interval_ns)) if delay_ns > 0 else None
+        self._poke()
+        return old
+
+    def get_itimer(self) -> tuple[int, int]:
+        """What is left of the signal timer (delay, interval) in ns; (0, 0) when it is not armed."""
+        with self._mu:
+            return self._get_itimer_locked()
+
+    def _get_itimer_locked(self) -> tuple[int, int]:
+        if self.itimer is None:
+            return 0, 0
+        deadline, interval = self.itimer
+        return max(1, deadline - self._now_ns), interval
+
+    def _fire_itimer_locked(self, t_ns: int) -> None:
+        """The signal timer fell due (the phase's second round): SIGALRM goes to the main thread, which runs its handler
+        in this phase: it is marked busy first and its wait, Python's or C's, ends (a sleep goes on afterwards)."""
+        assert self.itimer is not None
+        deadline, interval = self.itimer
+        self.itimer = (max(deadline + interval, t_ns + 1), interval) if interval > 0 else None
+        main = threading.main_thread().ident
+        assert main is not None
+        w = self._idle.get(main)
+        if w is not None and not w.released:
+            w.interrupted = True
+            w.released = True  # busy from now on: the handler runs in this phase
+            self._idle.pop(main, None)
+        signal.pthread_kill(main, signal.SIGALRM)
+        if w is not None:
+            if w.wake is not None:
+                w.wake()
+            else:
+                self._unlock(w)
+        elif self.native is not None:
+            self.native.interrupt(main)
 
     def _settle(self) -> None:
         """The script is idle but sent its vehicle MAVLink in this phase: wait (wall clock) until the vehicle
@@ -354,6 +405,8 @@ class SimRuntime:
         if mavlink_wakes and self.vehicle < 0:
             return EVERY_PHASE, True, False
         deadlines = [w.deadline_ns for w in self._timed if not w.released and w.deadline_ns is not None]
+        if self.itimer is not None:
+            deadlines.append(self.itimer[0])
         if native is not None and (d := native.next_deadline_ns()) != NATIVE_NO_DEADLINE:
             deadlines.append(d)
         return (
@@ -386,10 +439,11 @@ class SimRuntime:
         self.trace.flush()
 
     def busy_threads(self) -> list[str]:
-        """Where every thread that keeps phase 0 from ending is (diagnostics)."""
+        """Where every thread and child process that keeps phase 0 from ending is, and which call it is in
+        (diagnostics: the warning before the watchdog drops the mission)."""
         with self._mu:
-            native = [f"MAVSDK's threads: {self.native.describe()}"] if self.native and self.native.busy() else []
-            return native + [f"{t.name} at {where}" for t, where in self._busy_locked()]
+            native = [self.native.describe()] if self.native and self.native.busy() else []
+            return native + [f"{t.name} at {where}{_in_kernel(t)}" for t, where in self._busy_locked()]
 
     def take_outbox(self) -> list[_Outgoing]:
         with self._mu:
@@ -456,11 +510,15 @@ class SimRuntime:
         if not self._tracked():
             self.wall.sleep_ns(ns)
             return
-        if ns <= 0:
-            return
-        w = self.new_waiter(deadline_ns=self._now_ns + ns)
-        w.lock.acquire()
-        self.finish_wait(w)
+        deadline = self._now_ns + ns
+        while self._now_ns < deadline and not self.closed:
+            w = self.new_waiter(deadline_ns=deadline)
+            try:
+                w.lock.acquire()  # a signal handler that raises (a timer's) leaves through here
+            finally:
+                self.finish_wait(w)
+            if not w.interrupted:
+                return
 
     def new_waiter(
         self,
@@ -716,6 +774,38 @@ class SimRuntime:
             if first_only:
                 break
         return busy
+
+
+def _in_kernel(t: threading.Thread) -> str:
+    """The system call a busy thread is in (a C call outside every patched one), for the watchdog's message."""
+    try:
+        with open(f"/proc/self/task/{t.native_id}/syscall") as f:
+            first = f.read().split(" ", 1)[0]
+    except OSError:
+        return ""
+    if first == "running" or not first.isdigit():
+        return ""
+    name = _SYSCALLS.get(int(first), f"system call {first}")
+    return f" (blocked in {name}: a C call the sim clock does not know)"
+
+
+_SYSCALLS = {
+    0: "read",
+    7: "poll",
+    23: "select",
+    202: "futex (a lock or condition variable)",
+    35: "nanosleep",
+    230: "clock_nanosleep",
+    61: "wait4",
+    45: "recvfrom",
+    47: "recvmsg",
+    43: "accept",
+    232: "epoll_wait",
+    281: "epoll_pwait",
+    34: "pause",
+    130: "sigsuspend",
+}
+"""x86-64 system call numbers of the usual blocking calls."""
 
 
 def _joins_ended(frame: FrameType, threads: list[threading.Thread]) -> bool:

@@ -1,10 +1,11 @@
-"""The sim-time shim's shared object: where it is, and compiling it (``simtime.c`` → ``simtime-<hash>.so``).
+"""The sim-time shims' shared objects: where they are, and compiling them (``simtime.c`` → ``simtime-<hash>.so``,
+the mission's side; ``simchild.c`` → ``simchild-<hash>.so``, its child processes' side).
 
-It is compiled when the package is built (``setup.py`` loads this module by path and puts the shared object in the
-wheel beside ``simtime.c``) and, where a build has none (no C compiler when it was built, or ``simtime.c`` edited
-since), with the machine's C compiler the first time a mission needs it (about 0.3 s), into the user's cache
-directory. Both are named by the source's hash, so a build of another source is never loaded. Without either,
-MAVSDK's threads keep the wall clock: one warning says so.
+They are compiled when the package is built (``setup.py`` loads this module by path and puts the shared objects in
+the wheel beside their sources) and, where a build has none (no C compiler when it was built, or a source edited
+since), with the machine's C compiler the first time a mission needs them (about 0.3 s each), into the user's
+cache directory. Both are named by the source's hash, so a build of another source is never loaded. Without
+either, MAVSDK's threads (and the mission's C-level waits and children) keep the wall clock: one warning says so.
 
 This module imports nothing from harness (``setup.py`` loads it before the package is installed).
 """
@@ -23,7 +24,10 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).with_name("simtime.c")
-PREFIX = "simtime-"
+"""The mission's side: its own threads' and libraries' clock reads and waits (``docs/simclock.md``)."""
+CHILD_SOURCE = Path(__file__).with_name("simchild.c")
+"""The child processes' side (``LD_PRELOAD`` in programs a mission starts; the GOTs of a process it forks)."""
+SOURCES = (SOURCE, CHILD_SOURCE)
 _warned = False
 
 
@@ -44,19 +48,19 @@ def compiler() -> str | None:
 
 
 def shim_name(source: Path = SOURCE) -> str:
-    """The compiled shim's file name: ``simtime-<sha256 of the source, 16 hex>.so`` (a build of an older source
+    """The compiled shim's file name: ``<stem>-<sha256 of the source, 16 hex>.so`` (a build of another source
     is never loaded)."""
-    return f"{PREFIX}{hashlib.sha256(source.read_bytes()).hexdigest()[:16]}.so"
+    return f"{source.stem}-{hashlib.sha256(source.read_bytes()).hexdigest()[:16]}.so"
 
 
-def packaged_path() -> Path:
-    """Where a build of the package put the shim (``setup.py``): beside ``simtime.c``."""
-    return SOURCE.with_name(shim_name())
+def packaged_path(source: Path = SOURCE) -> Path:
+    """Where a build of the package put the shim (``setup.py``): beside its source."""
+    return source.with_name(shim_name(source))
 
 
-def library_path() -> Path:
+def library_path(source: Path = SOURCE) -> Path:
     """Where the shim is compiled at run time when the package has none: the user's cache."""
-    return cache_dir() / shim_name()
+    return cache_dir() / shim_name(source)
 
 
 def compile_shim(target: Path, source: Path = SOURCE) -> str | None:
@@ -68,7 +72,7 @@ def compile_shim(target: Path, source: Path = SOURCE) -> str | None:
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
     os.close(fd)
-    cmd = [*cc.split(), "-O2", "-shared", "-fPIC", "-o", tmp, str(source), "-lpthread"]
+    cmd = [*cc.split(), "-O2", "-shared", "-fPIC", "-o", tmp, str(source), "-ldl", "-lpthread"]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         os.unlink(tmp)
@@ -79,17 +83,17 @@ def compile_shim(target: Path, source: Path = SOURCE) -> str | None:
     return None
 
 
-def build() -> Path | None:
+def build(source: Path = SOURCE) -> Path | None:
     """The compiled shim: the package's own, else the user cache's (:func:`cached`); None without a C compiler or
     when the build fails (one warning per process)."""
-    packaged = packaged_path()
-    return packaged if packaged.is_file() else cached()
+    packaged = packaged_path(source)
+    return packaged if packaged.is_file() else cached(source)
 
 
-def cached() -> Path | None:
+def cached(source: Path = SOURCE) -> Path | None:
     """The shim in the user's cache, compiled there if needed (once, however many processes ask at once)."""
     global _warned
-    target = library_path()
+    target = library_path(source)
     if target.is_file():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -97,10 +101,10 @@ def cached() -> Path | None:
         fcntl.flock(lock, fcntl.LOCK_EX)  # a hundred missions may ask at once: one compiles
         if target.is_file():
             return target
-        why = compile_shim(target)
+        why = compile_shim(target, source)
     if why is not None:
         if not _warned:
             _warned = True
-            log.warning("%s: MAVSDK's own threads stay on the wall clock", why)
+            log.warning("%s: MAVSDK's own threads and the mission's C-level waits stay on the wall clock", why)
         return None
     return target

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
+import sys
 import threading
 import time
 
@@ -17,7 +19,7 @@ from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
 from tests.helpers import wait_until
 
-from .conftest import Procs, load
+from .conftest import SCRIPTS, Procs, load
 
 
 def physics_in_thread(address: str, ticks: int, **kw: object) -> tuple[threading.Thread, dict[str, object]]:
@@ -216,3 +218,42 @@ def test_mission_that_leaves_while_packets_are_queued_for_it_exits_with_its_code
         assert ch.faults == []
     finally:
         ch.close()
+
+
+@pytest.mark.parametrize(
+    ("kind", "says"),
+    [
+        ("lock", "MainThread at {script}:11 in <module> (blocked in futex"),
+        ("child", "child process {pid} ({python}) busy, in futex"),
+    ],
+)
+def test_a_stuck_thread_or_child_is_named_with_the_call_it_is_in(procs: Procs, kind: str, says: str) -> None:
+    """Issue 33: before the watchdog drops a mission that never goes idle, its log says where each busy thread and
+    child process is, down to the system call (a lock's futex here), so the user knows what to change."""
+    ch = Channel(ChannelConfig(stall_timeout_s=5, phase_every=5)).start()
+    try:
+        procs.driver("autopilot", ch.address, "--vehicle", "0")
+        mission = procs.mission(ch.address, "stuck.py", kind)
+        wait_until(lambda: len(ch.subscribers()) == 2, what="mission joined")
+        run_fake_physics(ch.address, 1, 100)  # returns once the channel has dropped the stalled mission (5 s)
+        for pid in _descendants(mission.pid):  # the stuck child too: no orphans
+            os.kill(pid, signal.SIGKILL)
+        mission.kill()
+        _, err = mission.communicate(timeout=60)
+    finally:
+        ch.stop()
+    warning = next((line for line in err.splitlines() if "busy threads:" in line), "")
+    pid = re.search(r"child process (\d+)", warning)
+    expected = says.format(
+        script=SCRIPTS / "stuck.py", pid=pid.group(1) if pid else "?", python=os.path.realpath(sys.executable)
+    )
+    assert expected in warning, err[-3000:]
+
+
+def _descendants(pid: int) -> list[int]:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            children = [int(x) for x in f.read().split()]
+    except OSError:
+        return []
+    return [d for c in children for d in [c, *_descendants(c)]]
