@@ -263,12 +263,14 @@ def test_without_a_compiler_the_library_keeps_the_wall_clock(
     monkeypatch.setenv("PATH", str(tmp_path))
     monkeypatch.delenv("CC", raising=False)
     monkeypatch.setattr(shim, "_warned", False)
-    monkeypatch.setattr(shim, "packaged_path", lambda: tmp_path / "not-built.so")  # a package built without one
+    monkeypatch.setattr(shim, "packaged_path", lambda source: tmp_path / "not-built.so")  # a package built without
     assert shutil.which("cc") is None
     assert shim.build() is None
     assert shim.build() is None
     warnings = [r.message for r in caplog.records if "no C compiler" in r.message]
-    assert warnings == ["no C compiler (cc, gcc or clang): MAVSDK's own threads stay on the wall clock"]
+    assert warnings == [
+        "no C compiler (cc, gcc or clang): MAVSDK's own threads and the mission's C-level waits stay on the wall clock"
+    ]
 
 
 def test_many_processes_build_it_once_into_an_empty_cache(tmp_path: Path) -> None:
