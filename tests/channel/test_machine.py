@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from harness.channel.events import PeerLink, PhaseState, Role, RunFailed, Send, TickState
+from harness.channel.events import PeerLink, PhaseState, Role, RunFailed, Send, TickDone, TickState
 from harness.channel.machine import TickMachine
 from harness.channel.watchdog import JOIN, Watchdog
 from harness.core.clock import ManualClock
@@ -291,3 +291,85 @@ def test_watchdog_runs_on_the_injected_clock() -> None:
     assert wd.expired() == [] and not wd.watching(7)
     with pytest.raises(ValueError):
         clock.advance_to(0)
+
+
+class _Tree:
+    """A root machine (physics in-process) and one child machine below it, joined as the shells join them: the
+    child's frames to its parent are held in one ordered stream (a TCP connection) that the test releases when
+    it likes; the root's frames to the child are delivered at once."""
+
+    def __init__(self) -> None:
+        clock = ManualClock()
+        self.root = TickMachine(Watchdog(clock), name="root", stall_timeout_s=1.0)
+        self.root.attach_upstream(0, p.PeerKind.PHYSICS, "physics", PeerLink.IN_PROCESS)
+        self.child = TickMachine(Watchdog(clock), name="child", stall_timeout_s=1.0)
+        self.child.attach_upstream(0, p.PeerKind.CHILD, "parent")
+        self.up: list[p.Message] = []
+        """The child's frames on their way to the root, in order."""
+        self.below: list[tuple[int, p.Message]] = []
+        """What the child sent its own peers (pid, message)."""
+        self.ticks_done: list[list[str]] = []
+        """At each end of a root tick: the names of the missions the root knows have ended."""
+        self.ap = self.child.join(1, p.Hello(p.PROTOCOL_VERSION, AP, "ap", -1, (0,)))
+        self.mission = self.child.join(2, p.Hello(p.PROTOCOL_VERSION, T0, "m0", 0))
+        self.pump()
+        self.at_root = self.root.join(1, p.Hello(p.PROTOCOL_VERSION, p.PeerKind.CHILD, "child", -1, (0,)))
+        self.release()
+
+    def pump(self) -> None:
+        for pid, msg in _sent(self.child):
+            if pid == 0:
+                self.up.append(msg)
+            else:
+                self.below.append((pid, msg))
+        for action in self.root.drain():
+            if isinstance(action, Send):
+                for msg in p.FrameDecoder().feed(action.data):
+                    self.child.from_upstream(msg)
+                self.pump()
+            elif isinstance(action, TickDone):
+                self.ticks_done.append([e.peer for e in self.root.mission_exits])
+
+    def release(self, n: int | None = None) -> None:
+        """The next ``n`` of the child's frames reach the root (None: every frame, those it answers too)."""
+        while self.up and (n is None or n > 0):
+            self.root.receive(self.at_root, self.up.pop(0))
+            self.pump()
+            n = None if n is None else n - 1
+
+    def sent_below(self, kind: type) -> list[p.Message]:
+        out = [msg for _, msg in self.below if isinstance(msg, kind)]
+        self.below = [(pid, msg) for pid, msg in self.below if not isinstance(msg, kind)]
+        return out
+
+
+def test_a_remote_missions_exit_ends_the_root_tick_it_left_in_whenever_its_frames_arrive() -> None:
+    """A mission on a child channel answers its phase 0 with BYE: its child sends the exit up ahead of its own
+    END-TICK-0 of that tick, so the root knows of it when that tick ends, however late the child's frames
+    reach it, and the run ends at the same tick as on one machine. And the root's phase 0 begins only after
+    the child's END-TICK-AC are in: the child decides its missions' phases from them (a MAVSDK mission on a
+    cluster worker took part a phase late, and ended a phase late, when the BEGIN-TICK-0 came first)."""
+    tree = _Tree()
+    for tick in range(2):
+        t = tick * TICK_NS
+        tree.root.from_upstream(p.BeginTickAC(t, tick, 0, 1, (0.0, 0.0, 0.0)))
+        tree.pump()
+        assert tree.sent_below(p.BeginTickAC) and not tree.sent_below(p.BeginTick0)
+        tree.child.receive(tree.ap, p.EndTickAC(t, 0, (0.5,) * 4))
+        tree.pump()
+        assert not tree.sent_below(p.BeginTick0)  # the answer is still on its way up
+        tree.release()
+        assert tree.sent_below(p.BeginTick0) == [p.BeginTick0(t, tick)]
+        if tick == 0:
+            tree.child.receive(tree.mission, p.EndTick0(t))
+            tree.pump()
+        else:
+            tree.child.receive(tree.mission, p.Bye("script exited with 0", 0))
+            tree.pump()
+            assert [type(msg) for msg in tree.up] == [p.Announce, p.EndTick0]
+            tree.release(1)  # the exit is in, the phase answer not yet: the tick goes on
+            assert [e.peer for e in tree.root.mission_exits] == ["m0"] and len(tree.ticks_done) == 1
+        tree.release()
+        assert len(tree.ticks_done) == tick + 1
+    assert tree.ticks_done == [[], ["m0"]]
+    assert [e.exit_code for e in tree.root.mission_exits] == [0] and tree.root.missions_below() == 0
