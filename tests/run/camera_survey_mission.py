@@ -51,7 +51,10 @@ def main() -> None:
         if req is None or req.get_type() == "MISSION_ACK":
             break
         cmd, p1, p2, p3, x, y, z = items[req.seq]
-        frame = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+        # as QGroundControl and MAVSDK send them (and PX4 takes them only so): items with a position in a global
+        # frame, the others in MAV_FRAME_MISSION
+        positioned = cmd in (M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_WAYPOINT)
+        frame = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT if positioned else M.MAV_FRAME_MISSION
         m.mav.mission_item_int_send(sysid, 1, req.seq, frame, cmd, 0, 1, p1, p2, p3, 0, x, y, z, 0)
     print(f"UPLOAD {req.type if req is not None else 'timeout'}", flush=True)
     while not m.motors_armed():
