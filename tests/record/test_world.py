@@ -39,6 +39,7 @@ def _write(path: Path, public: bool, ticks: int, vehicles: int) -> WorldRecorder
     if public:
         rec._add = rec._add_message  # mcap's Writer.add_message for every message
         rec._add_vehicle = rec._add_vehicle_messages
+        rec._before_finish = None  # and its own chunk indexes and message indexes
     for k in range(ticks):
         for v in range(vehicles):
             rec.vehicle(_sample(k, v))
