@@ -171,16 +171,26 @@ class WorldTee:
             self.mcap.vehicle(s)
         except OSError as exc:
             self._mcap_failed(exc)
-        if self.view is not None or self._opening is not None:
+        if self._opening is not None:
             self._guard(lambda v: v.vehicle(s))
+        elif self.view is not None:  # what _apply does, without a closure per vehicle and sample
+            try:
+                self.view.vehicle(s)
+            except Exception:
+                self._fail()
 
     def tick(self, t_ns: int, tick: int, wall_s: float, tick_wall_us: float) -> None:
         try:
             self.mcap.tick(t_ns, tick, wall_s, tick_wall_us)
         except OSError as exc:
             self._mcap_failed(exc)
-        if self.view is not None or self._opening is not None:
+        if self._opening is not None:
             self._guard(lambda v: v.tick(t_ns, tick, wall_s, tick_wall_us))
+        elif self.view is not None:
+            try:
+                self.view.tick(t_ns, tick, wall_s, tick_wall_us)
+            except Exception:
+                self._fail()
 
     def event(self, t_ns: int, kind: str, detail: dict[str, Any]) -> None:
         try:

@@ -38,6 +38,8 @@ def _write(path: Path, public: bool, ticks: int, vehicles: int) -> WorldRecorder
     rec = WorldRecorder(path, EPOCH_NS, vehicles)
     if public:
         rec._add = rec._add_message  # mcap's Writer.add_message for every message
+        rec._add_vehicle = rec._add_vehicle_messages
+        rec._before_finish = None  # and its own chunk indexes and message indexes
     for k in range(ticks):
         for v in range(vehicles):
             rec.vehicle(_sample(k, v))
@@ -58,6 +60,7 @@ def test_the_fast_path_writes_the_same_file_as_mcaps_add_message(
     (records, chunk boundaries, message indexes, statistics, summary)."""
     fast = _write(tmp_path / "fast.mcap", public=False, ticks=ticks, vehicles=vehicles)
     assert fast._add != fast._add_message, "this mcap's writer is not the one the fast path knows"
+    assert fast._add_vehicle != fast._add_vehicle_messages
     _write(tmp_path / "public.mcap", public=True, ticks=ticks, vehicles=vehicles)
     data = (tmp_path / "fast.mcap").read_bytes()
     assert data == (tmp_path / "public.mcap").read_bytes()

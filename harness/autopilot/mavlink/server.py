@@ -318,8 +318,9 @@ class MavlinkServer:
             waiting, self._deferred = self._deferred, []
             for k, data, addr in waiting:
                 self._handle(k, data, addr, now)
+        sim_peers = self._sim_peers()  # only a link's receive() adds one: the same for the rest of this service
         try:
-            self._tick(now)
+            self._tick(now, sim_peers)
             for k, link in enumerate(self.links):  # a mission's MAVSDK port, announced: greet it until it answers
                 for addr in link.greetings(now):
                     self._send(
@@ -329,7 +330,6 @@ class MavlinkServer:
         except Exception as e:
             self._count("handler_errors")
             self._log_once(e, "service")
-        sim_peers = self._sim_peers()
         retry = self.missions.next_retry_ns() or _NEVER
         wake = min(
             self.heartbeat.next_due_ns(), self.streams.next_due_wall_ns() or _NEVER, _NEVER if sim_peers else retry
@@ -590,7 +590,9 @@ class MavlinkServer:
     def _boot_ms(self) -> int:
         return (self._t_ns // 1_000_000) & 0xFFFFFFFF
 
-    def _tick(self, now: int) -> None:
+    def _tick(self, now: int, sim_peers: bool) -> None:
+        """One instant's messages. ``sim_peers``: :meth:`_sim_peers`, which a tick does not change; the peers'
+        clock (:meth:`_peer_now`) is read once, after sim time has been brought up to the state's."""
         state = self.api.telemetry.state()
         if self._first_t_ns is None:
             self._first_t_ns = state.t_ns
@@ -603,7 +605,7 @@ class MavlinkServer:
         self._t_ns = max(self._t_ns, state.t_ns)
         mav = self.codec.mav
         outs: list[Out] = []
-        sim_peers = self._sim_peers()
+        peer_now = self._t_ns if sim_peers else now  # _peer_now(now): _t_ns is at least the state's time now
         if self.heartbeat.due(now, state, sim_peers):
             outs.append(Out(self.dialect.heartbeat(mav, state), wall_clock=self.heartbeat.by_wall))
             for cid, component in self.components.items():
@@ -626,15 +628,15 @@ class MavlinkServer:
             outs.append(Out(mission_current(mav, state, t_ms)))
         for reached in self.api.telemetry.pop_mission_reached():
             outs.append(Out(mav.mission_item_reached_encode(reached.seq & 0xFFFF)))
-        outs += self.dialect.tick(state, self._peer_now(now))
+        outs += self.dialect.tick(state, peer_now)
         self._send_all(outs, now)
-        lost = self.datalink.check(state, self._peer_now(now))
+        lost = self.datalink.check(state, peer_now)
         if lost:
             self._say(Severity.CRITICAL, lost, now)
         for text in self.api.telemetry.pop_status_texts():
             self._say(text.severity, text.text, now)
         self._send_all(self.params.tick(), now)
-        self._send_all(self.missions.tick(self._peer_now(now)), now)
+        self._send_all(self.missions.tick(peer_now), now)
         self._mission_refusals(now)
 
     def _set_home_at_first_fix(self, state: VehicleState) -> bool:
@@ -677,11 +679,17 @@ class MavlinkServer:
         if len(outs) == 1:
             self._send(outs[0], now)
             return
-        dests: dict[tuple[int, bool], list[Address]] = {}  # a batch at one instant: the same peers for all
+        dests: dict[bool, list[tuple[int, Address]]] = {}  # a batch at one instant: the same peers for all
         batches: dict[tuple[int, Address], list[bytes]] = {}
         for o in outs:
             data = self._encode(o)
-            for target in self._targets(o, now, dests):
+            if o.to is not None:
+                batches.setdefault((o.to.link, o.to.addr), []).append(data)
+                continue
+            targets = dests.get(o.wall_clock)
+            if targets is None:
+                targets = dests[o.wall_clock] = self._destinations(now, not o.wall_clock)
+            for target in targets:
                 batches.setdefault(target, []).append(data)
         sent = 0
         for (k, addr), frames in batches.items():
@@ -693,7 +701,10 @@ class MavlinkServer:
 
     def _send(self, out: Out, now: int) -> None:
         data = self._encode(out)
-        sent = sum(self.links[k].send(data, addr) for k, addr in self._targets(out, now, {}))
+        if out.to is not None:
+            sent = int(self.links[out.to.link].send(data, out.to.addr))
+        else:
+            sent = sum(self.links[k].send(data, addr) for k, addr in self._destinations(now, not out.wall_clock))
         if sent:
             self._count("frames_tx", sent)
 
@@ -703,15 +714,7 @@ class MavlinkServer:
             self._tap(data)
         return data
 
-    def _targets(self, out: Out, now: int, dests: dict[tuple[int, bool], list[Address]]) -> list[tuple[int, Address]]:
-        """(link index, address) pairs ``out`` goes to; ``dests`` caches each link's peers for one instant."""
-        if out.to is not None:
-            return [(out.to.link, out.to.addr)]
-        sim_peers = not out.wall_clock
-        targets = []
-        for k, link in enumerate(self.links):
-            addrs = dests.get((k, sim_peers))
-            if addrs is None:
-                addrs = dests[(k, sim_peers)] = link.destinations(now, sim_peers=sim_peers)
-            targets += [(k, addr) for addr in addrs]
-        return targets
+    def _destinations(self, now: int, sim_peers: bool) -> list[tuple[int, Address]]:
+        """(link index, address) pairs a message to everyone goes to now; without the peers on sim time when
+        ``sim_peers`` is False (a wall-clock message)."""
+        return [(k, addr) for k, link in enumerate(self.links) for addr in link.destinations(now, sim_peers=sim_peers)]
