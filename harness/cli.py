@@ -16,13 +16,14 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 from harness import cli_types as ct
 from harness.cli_run import (
+    after_the_command,
     cluster_plan,
     cmd_channel,
     cmd_join,
     cmd_plot,
     cmd_sweep,
-    ignore_stop_signals_after_the_run,
     progress_printer,
+    stop_handlers,
     terminate_as_interrupt,
     tree_options,
 )
@@ -614,7 +615,9 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, exiting: bool = False) -> int:
+    """``harness ARGV``: the exit code. ``exiting``: the process ends when it returns (the ``harness`` command);
+    called as a function, it leaves the process's signal handlers as it found them."""
     lifeline.hold_on()  # started by a run (Children): die with it, before anything else
     argv = list(sys.argv[1:] if argv is None else argv)
     script_args: list[str] = []
@@ -633,14 +636,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         from harness.record.sink import QUIET_RERUN_LOG
 
         os.environ.setdefault("RUST_LOG", QUIET_RERUN_LOG)
+    before = stop_handlers()
     try:
         return int(a.func(a, unknown + script_args))
     except HarnessError as exc:
         print(f"harness: {cut(str(exc), ERROR_CHARS)}", file=sys.stderr)  # one line, however long its values
         return 2
     finally:
-        ignore_stop_signals_after_the_run()
+        after_the_command(before, exiting=exiting)
+
+
+def command() -> int:
+    """The ``harness`` command (console script and ``python -m harness.cli``): :func:`main` in a process that
+    ends when it returns."""
+    return main(exiting=True)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(command())

@@ -160,13 +160,25 @@ def terminate_as_interrupt() -> None:
 _STOP_HANDLERS: set[Callable[[int, object], None]] = set()
 
 
-def ignore_stop_signals_after_the_run() -> None:
-    """The command is done (its run cleaned up, its summary written): a Ctrl-C while the interpreter exits is
-    ignored. Without this, Python's exit puts SIGINT back to its default before native libraries flush (a
-    second or two), and a second Ctrl-C in that window killed the process (exit -2 instead of the first's 0)."""
-    for signum in (signal.SIGINT, signal.SIGTERM):
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def stop_handlers() -> dict[int, Any]:
+    """SIGINT's and SIGTERM's handlers now (for :func:`after_the_command`)."""
+    return {signum: signal.getsignal(signum) for signum in STOP_SIGNALS}
+
+
+def after_the_command(before: dict[int, Any], *, exiting: bool) -> None:
+    """The command is done (its run cleaned up, its summary written); the stop handlers it armed go.
+
+    ``exiting`` (the ``harness`` command, the process ends now): a Ctrl-C while the interpreter exits is ignored.
+    Without this, Python's exit puts SIGINT back to its default before native libraries flush (a second or two),
+    and a second Ctrl-C in that window killed the process (exit -2 instead of the first's 0).
+    Otherwise (``main`` called as a function: a test, a program embedding the harness) the handlers of ``before``
+    come back: an ignored SIGTERM left behind would be inherited by every process the caller starts later."""
+    for signum in STOP_SIGNALS:
         if signal.getsignal(signum) in _STOP_HANDLERS:
-            signal.signal(signum, signal.SIG_IGN)
+            signal.signal(signum, signal.SIG_IGN if exiting else before[signum])
 
 
 def sweep_bar() -> Callable[[SweepProgress], None]:
