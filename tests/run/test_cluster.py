@@ -16,7 +16,6 @@ import subprocess
 import sys
 import threading
 import time
-import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,7 @@ from pathlib import Path
 import pytest
 
 from harness.record.world import read_topics
+from tests.helpers import TwoHosts, free_port_on, two_hosts
 
 MISSION = Path(__file__).resolve().parents[2] / "missions" / "hover.py"
 HOVER_S = "3"
@@ -31,16 +31,6 @@ VEHICLES = 6
 SEED = 11
 pytestmark = pytest.mark.sim
 DASK = str(Path(sys.executable).with_name("dask"))
-
-
-def _ip(*args: str) -> bool:
-    return subprocess.run(["ip", *args], capture_output=True).returncode == 0
-
-
-def _free_port(prefix: tuple[str, ...], ip: str) -> int:
-    code = f"import socket; s = socket.socket(); s.bind(({ip!r}, 0)); print(s.getsockname()[1])"
-    out = subprocess.run([*prefix, sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return int(out.stdout)
 
 
 @dataclass
@@ -61,30 +51,15 @@ def _listening(prefix: tuple[str, ...], ip: str, port: int, timeout_s: float) ->
 
 @pytest.fixture
 def cluster(tmp_path: Path) -> Iterator[Cluster]:
-    tag = uuid.uuid4().hex[:6]
-    a, b = f"hc-a-{tag}", f"hc-b-{tag}"
-    made = _ip("netns", "add", a) and _ip("netns", "add", b)
-    if made:
-        made = all(
-            _ip(*cmd)
-            for cmd in (
-                ("link", "add", f"ca{tag}", "type", "veth", "peer", "name", f"cb{tag}"),
-                ("link", "set", f"ca{tag}", "netns", a),
-                ("link", "set", f"cb{tag}", "netns", b),
-                ("-n", a, "addr", "add", "10.232.0.1/24", "dev", f"ca{tag}"),
-                ("-n", b, "addr", "add", "10.232.0.2/24", "dev", f"cb{tag}"),
-                ("-n", a, "link", "set", f"ca{tag}", "up"),
-                ("-n", b, "link", "set", f"cb{tag}", "up"),
-                ("-n", a, "link", "set", "lo", "up"),
-                ("-n", b, "link", "set", "lo", "up"),
-            )
-        )
-    root_ip, worker_ip = ("10.232.0.1", "10.232.0.2") if made else ("127.0.0.1", "127.0.0.1")
-    root_prefix = ("ip", "netns", "exec", a) if made else ()
-    worker_prefix = ("ip", "netns", "exec", b) if made else ()
+    with two_hosts("10.232.0", ("127.0.0.1", "127.0.0.1")) as hosts:
+        yield from _cluster(tmp_path, hosts)
+
+
+def _cluster(tmp_path: Path, hosts: TwoHosts) -> Iterator[Cluster]:
+    root_ip, worker_ip, root_prefix, worker_prefix = hosts.a_ip, hosts.b_ip, hosts.a_prefix, hosts.b_prefix
     procs: list[subprocess.Popen[bytes]] = []
     try:
-        port = _free_port(root_prefix, root_ip)
+        port = free_port_on(root_prefix, root_ip)
         scheduler = f"tcp://{root_ip}:{port}"
         log = (tmp_path / "scheduler.log").open("wb")
         procs.append(
@@ -98,7 +73,7 @@ def cluster(tmp_path: Path) -> Iterator[Cluster]:
         _listening(root_prefix, root_ip, port, 60)
         workers = {}
         for k in range(2):
-            wport = _free_port(worker_prefix, worker_ip)
+            wport = free_port_on(worker_prefix, worker_ip)
             wlog = (tmp_path / f"worker-{k}.log").open("wb")
             proc = subprocess.Popen(
                 [
@@ -131,9 +106,6 @@ def cluster(tmp_path: Path) -> Iterator[Cluster]:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(10)
-        if made:
-            _ip("netns", "del", a)
-            _ip("netns", "del", b)
 
 
 class Root:

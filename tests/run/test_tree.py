@@ -23,6 +23,7 @@ from pathlib import Path
 import pytest
 
 from harness.record.world import read_topics
+from tests.helpers import free_port_on, two_hosts
 
 MISSION = Path(__file__).resolve().parents[2] / "missions" / "takeoff_and_land.py"
 pytestmark = pytest.mark.sim
@@ -36,44 +37,10 @@ class Hosts:
     child_prefix: tuple[str, ...]
 
 
-def _ip(*args: str) -> bool:
-    return subprocess.run(["ip", *args], capture_output=True).returncode == 0
-
-
 @pytest.fixture(scope="module")
 def hosts() -> Iterator[Hosts]:
-    tag = uuid.uuid4().hex[:6]
-    a, b = f"hr-a-{tag}", f"hr-b-{tag}"
-    made = _ip("netns", "add", a) and _ip("netns", "add", b)
-    if made:
-        made = all(
-            _ip(*cmd)
-            for cmd in (
-                ("link", "add", f"va{tag}", "type", "veth", "peer", "name", f"vb{tag}"),
-                ("link", "set", f"va{tag}", "netns", a),
-                ("link", "set", f"vb{tag}", "netns", b),
-                ("-n", a, "addr", "add", "10.231.0.1/24", "dev", f"va{tag}"),
-                ("-n", b, "addr", "add", "10.231.0.2/24", "dev", f"vb{tag}"),
-                ("-n", a, "link", "set", f"va{tag}", "up"),
-                ("-n", b, "link", "set", f"vb{tag}", "up"),
-                ("-n", a, "link", "set", "lo", "up"),
-                ("-n", b, "link", "set", "lo", "up"),
-            )
-        )
-    try:
-        if made:
-            yield Hosts("10.231.0.1", ("ip", "netns", "exec", a), ("ip", "netns", "exec", b))
-        else:  # no CAP_NET_ADMIN: two loopback addresses stand for the two hosts
-            yield Hosts("127.0.0.2", (), ())
-    finally:
-        _ip("netns", "del", a)
-        _ip("netns", "del", b)
-
-
-def _free_port(prefix: tuple[str, ...], ip: str) -> int:
-    code = f"import socket; s = socket.socket(); s.bind(({ip!r}, 0)); print(s.getsockname()[1])"
-    out = subprocess.run([*prefix, sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return int(out.stdout)
+    with two_hosts("10.231.0", ("127.0.0.2", "127.0.0.2")) as h:  # no CAP_NET_ADMIN: two loopback addresses
+        yield Hosts(h.a_ip, h.a_prefix, h.b_prefix)
 
 
 class Root:
@@ -165,7 +132,7 @@ def secret_file(tmp_path: Path) -> Path:
 
 
 def test_missions_fly_on_both_hosts(hosts: Hosts, tmp_path: Path, secret_file: Path) -> None:
-    port = _free_port(hosts.root_prefix, hosts.root_ip)
+    port = free_port_on(hosts.root_prefix, hosts.root_ip)
     root = Root(hosts, tmp_path / "root", secret_file, port)
     join = _join(hosts, root.address, secret_file, tmp_path / "child", "host-b")
     try:
@@ -194,7 +161,7 @@ def test_missions_fly_on_both_hosts(hosts: Hosts, tmp_path: Path, secret_file: P
 
 
 def test_losing_the_child_ends_the_run_naming_it(hosts: Hosts, tmp_path: Path, secret_file: Path) -> None:
-    port = _free_port(hosts.root_prefix, hosts.root_ip)
+    port = free_port_on(hosts.root_prefix, hosts.root_ip)
     root = Root(hosts, tmp_path / "root", secret_file, port)
     join = _join(hosts, root.address, secret_file, tmp_path / "child", "host-b")
     try:
@@ -214,7 +181,7 @@ def test_losing_the_child_ends_the_run_naming_it(hosts: Hosts, tmp_path: Path, s
 
 
 def test_wrong_secret_is_one_line(tmp_path: Path, secret_file: Path) -> None:
-    port = _free_port((), "127.0.0.1")
+    port = free_port_on((), "127.0.0.1")
     wrong = tmp_path / "wrong"
     wrong.write_text("not-the-secret\n")
     hosts = Hosts("127.0.0.1", (), ())
