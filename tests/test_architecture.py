@@ -208,14 +208,10 @@ def private_accesses(modules: Mapping[str, Path]) -> list[str]:
     return sorted(out)
 
 
-KNOWN_PRIVATE_ACCESSES = {
-    "harness.simclock.iowait": "rt._tracked",
-    "harness.simclock.mavsdk_compat": "rt._tracked",
-    "harness.simclock.patch": "rt._tracked",
-    "harness.simclock.simsocket": "rt._tracked",
-}
-"""The mission runtime's blocker registry, read by the patches around it: to become public with the runtime's
-single scheduler (issue 22, ``docs/architecture.md``). Nothing may be added here."""
+KNOWN_PRIVATE_ACCESSES: dict[str, str] = {}
+"""Modules allowed to reach into another's private state: none (the mission runtime's blocker registry, once read
+as ``rt._tracked``, is public since issue 33: ``threads.Registry``, ``SimRuntime.on_sim_time``). Nothing may be
+added here."""
 
 
 def test_private_accesses_are_found(tmp_path: Path) -> None:

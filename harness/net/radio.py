@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 from harness.core.errors import HarnessError
 from harness.simclock.installed import current
-from harness.simclock.runtime import Delivery, SimRuntime
+from harness.simclock.mailbox import Delivery
+from harness.simclock.runtime import SimRuntime
+from harness.simclock.threads import Kind
 from harness.wire.protocol import BROADCAST
 
 
@@ -61,7 +63,22 @@ def _message(d: Delivery | None) -> Message | None:
 
 def receive(timeout: float | None = None) -> Message | None:
     """The next message; blocks up to ``timeout`` seconds of sim time (None: until one arrives)."""
-    return _message(_rt().take_delivery(None, timeout))
+    return _message(_take(_rt(), timeout))
+
+
+def _take(rt: SimRuntime, timeout_s: float | None) -> Delivery | None:
+    """The oldest delivered packet, waiting up to ``timeout_s`` of sim time for one (None: until one comes), counted
+    idle (an ``INBOX`` blocker); None on timeout or when the run is over."""
+    deadline = None if timeout_s is None else rt.now_ns() + round(timeout_s * 1e9)
+    while True:
+        found = rt.mail.pop()  # deliveries only arrive between phases, never while this runs
+        if found is not None:
+            return found
+        if rt.closed or (deadline is not None and rt.now_ns() >= deadline):
+            return None
+        w = rt.new_waiter(Kind.INBOX, deadline_ns=deadline, inbox=True)
+        w.lock.acquire()
+        rt.finish_wait(w)
 
 
 def _resolve(fut: asyncio.Future[None]) -> None:
@@ -76,7 +93,7 @@ async def receive_async(timeout: float | None = None) -> Message | None:
     deadline = None if timeout is None else rt.now_ns() + round(timeout * 1e9)
     loop = asyncio.get_running_loop()
     while True:
-        msg = _message(rt.take_delivery(None, 0.0))
+        msg = _message(_take(rt, 0.0))
         if msg is not None or rt.closed:
             return msg
         left_ns = None if deadline is None else deadline - rt.now_ns()

@@ -22,6 +22,7 @@ from typing import Any
 
 from harness.core.clock import NS_PER_S
 from harness.simclock.runtime import SimRuntime
+from harness.simclock.threads import Kind
 
 real_select = select.select
 real_poll = select.poll
@@ -67,6 +68,7 @@ def wait(
 
     rl, wl = list(rfds), list(wfds)
     waiter = rt.new_waiter(
+        Kind.IO,
         deadline_ns=deadline_ns,
         wake=wake,
         inbox=inbox,
@@ -108,7 +110,7 @@ def make_select(rt: SimRuntime) -> Callable[..., tuple[list[Any], list[Any], lis
         rlist: Iterable[Any], wlist: Iterable[Any], xlist: Iterable[Any], timeout: float | None = None
     ) -> tuple[list[Any], list[Any], list[Any]]:
         rl, wl, xl = list(rlist), list(wlist), list(xlist)
-        if not rt._tracked():
+        if not rt.on_sim_time():
             return real_select(rl, wl, xl, timeout)
         if timeout is not None and timeout < 0:
             raise ValueError("timeout must be non-negative")
@@ -177,7 +179,7 @@ def make_poll_class(rt: SimRuntime) -> type:
             self._inner = real_poll()
 
         def poll(self, timeout: float | None = None) -> list[tuple[int, int]]:
-            if not rt._tracked():
+            if not rt.on_sim_time():
                 return list(self._inner.poll(timeout))
             t = None if timeout is None or timeout < 0 else timeout / 1000.0
             return self._wait_until(lambda: list(self._inner.poll(0)), t)
@@ -201,7 +203,7 @@ def make_epoll_class(rt: SimRuntime) -> type:
             super().register(fd, eventmask)
 
         def poll(self, timeout: float | None = None, maxevents: int = -1) -> list[tuple[int, int]]:
-            if not rt._tracked():
+            if not rt.on_sim_time():
                 return list(self._inner.poll(timeout, maxevents))
             t = None if timeout is None or timeout < 0 else timeout
             return self._wait_until(lambda: list(self._inner.poll(0, maxevents)), t)

@@ -16,7 +16,6 @@ import logging
 import os
 import runpy
 import sys
-import threading
 import time
 import traceback
 from collections.abc import Callable, Sequence
@@ -28,7 +27,9 @@ from harness.core.clock import NS_PER_S
 from harness.core.endpoints import VehicleEndpoints, sysid
 from harness.core.errors import ScenarioError
 from harness.simclock import iowait, mavsdk_compat, native, patch, simsocket
-from harness.simclock.runtime import INFRA_THREAD_PREFIX, Delivery, SimRuntime
+from harness.simclock.mailbox import Delivery
+from harness.simclock.runtime import SimRuntime
+from harness.simclock.threads import HarnessThread
 from harness.wire import protocol as p
 from harness.wire.client import ChannelClient, ChannelClosed
 
@@ -67,9 +68,9 @@ def _release(lock: _thread.LockType) -> None:
         lock.release()
 
 
-class _ClockThread(threading.Thread):
+class _ClockThread(HarnessThread):
     def __init__(self, client: ChannelClient, rt: SimRuntime, hooks: MissionHooks) -> None:
-        super().__init__(name=f"{INFRA_THREAD_PREFIX}clock", daemon=True)
+        super().__init__(name="harness-clock", daemon=True)
         self.client = client
         self.rt = rt
         self.hooks = hooks
@@ -132,12 +133,12 @@ class _ClockThread(threading.Thread):
         self.hooks.end_process(EXIT_RUN_ENDED)
 
 
-class _WakeThread(threading.Thread):
+class _WakeThread(HarnessThread):
     """Asks the channel for a phase when a C-level wait of the process became ready between phases (the shim's
     ``want_fd``): what wakes a Python thread's wait does so itself (``SimRuntime.want_phase``)."""
 
     def __init__(self, rt: SimRuntime, fd: int) -> None:
-        super().__init__(name=f"{INFRA_THREAD_PREFIX}wake", daemon=True)
+        super().__init__(name="harness-wake", daemon=True)
         self.rt = rt
         self.fd = fd
 
@@ -211,21 +212,6 @@ def run_script(script: Path, args: Sequence[str]) -> int:
     return 0
 
 
-def _script_threads() -> list[threading.Thread]:
-    """Non-daemon threads the script itself started (not ones of installed libraries)."""
-    out = []
-    lib_roots = tuple({sys.prefix, sys.base_prefix, os.path.dirname(os.__file__)})
-    for t in threading.enumerate():
-        if t is threading.main_thread() or t.daemon or t.name.startswith(INFRA_THREAD_PREFIX):
-            continue
-        target = getattr(t, "_target", None)
-        code = getattr(target, "__code__", None) or getattr(type(t).run, "__code__", None)
-        filename = getattr(code, "co_filename", "")
-        if filename and not filename.startswith(lib_roots):
-            out.append(t)
-    return out
-
-
 def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
     """Connect, patch, run the script on the sim clock, report, and return the exit code."""
     if not spec.script.is_file():
@@ -269,14 +255,14 @@ def run_mission(spec: MissionSpec, hooks: MissionHooks) -> int:
         rt.trace.write(f"{rt.now_ns()} script starts\n")
     code = run_script(spec.script, spec.args)
     if code == 0:
-        for t in _script_threads():  # a normal end waits for the script's own threads, as Python does,
+        for t in rt.threads.live_own_threads():  # a normal end waits for the script's own threads, as Python does,
             while t.is_alive():  # looking at a phase (a sim-time wait), not whenever the OS ran this thread
                 time.sleep(rt.phase_period_ns / NS_PER_S)
     if rt.native is not None:
         rt.native.set_wall()  # what the main thread waits for from now on is the clock thread's BYE, on the wall clock
     clock.script_done = True
     clock.exit_code = code
-    rt.thread_done()  # the phase ends once the library threads are idle too, and answers BYE (the clock thread)
+    rt.threads.thread_done()  # the phase ends once the library threads are idle too, and answers BYE (the clock thread)
     rt.want_phase()  # should this be between phases after all: the channel calls the mission once more
     if not clock.said_bye.acquire(True, BYE_WAIT_S):
         try:

@@ -22,7 +22,7 @@ import ctypes
 import logging
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Container
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +37,23 @@ def build_all() -> None:
     """Build the mission's side and the child processes' side (once per machine; no-op when cached)."""
     if sys.platform.startswith("linux") and build() is not None:
         build(CHILD_SOURCE)
+
+
+@dataclass(frozen=True)
+class NativeState:
+    """What the shim's threads are doing, read at once (:meth:`NativeClock.snapshot`)."""
+
+    busy: int
+    waiting: Container[int]
+    """Idents of the threads (Python's ``threading`` idents) that wait inside the shim on the sim clock."""
+
+
+@dataclass(frozen=True)
+class _Waiting:
+    lib: ctypes.CDLL
+
+    def __contains__(self, ident: object) -> bool:
+        return isinstance(ident, int) and bool(self.lib.hs_thread_waiting(ident))
 
 
 @dataclass(eq=False)
@@ -62,8 +79,8 @@ class NativeClock:
         """Shut the gate without ending the phase (a settle is in flight); :meth:`reopen` opens it again."""
         self.lib.hs_pause()
 
-    def busy(self) -> int:
-        return int(self.lib.hs_busy())
+    def snapshot(self) -> NativeState:
+        return NativeState(int(self.lib.hs_busy()), _Waiting(self.lib))
 
     def release_ready(self) -> int:
         """Let every library thread whose descriptors are ready run; how many."""

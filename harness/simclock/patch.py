@@ -25,9 +25,10 @@ from itertools import islice
 from typing import Any
 
 from harness.core.clock import NS_PER_S
-from harness.simclock import iowait
+from harness.simclock import iowait, threads
 from harness.simclock.installed import INSTALLED
-from harness.simclock.runtime import SimRuntime, Waiter
+from harness.simclock.runtime import SimRuntime
+from harness.simclock.threads import Kind, Waiter
 
 _originals: dict[tuple[object, str], Any] = {}
 _SIM_CLOCKS = ("CLOCK_MONOTONIC", "CLOCK_MONOTONIC_RAW", "CLOCK_MONOTONIC_COARSE", "CLOCK_BOOTTIME", "CLOCK_UPTIME")
@@ -107,7 +108,7 @@ def install(rt: SimRuntime) -> None:
 
     def wait_clock() -> float:
         # the clock of timed waits: sim time where waits are sim-time waits, real time elsewhere
-        return (rt.now_ns() if rt._tracked() else rt.wall.now_ns()) / NS_PER_S
+        return (rt.now_ns() if rt.on_sim_time() else rt.wall.now_ns()) / NS_PER_S
 
     # modules that captured a time function at import, for their timed waits
     _set(threading, "_time", wait_clock)
@@ -123,8 +124,9 @@ def install(rt: SimRuntime) -> None:
     _set(threading.Condition, "notify", _make_condition_notify(rt))
     _set(_futures_thread.ThreadPoolExecutor, "__init__", _make_executor_init())
 
-    for (owner, name), value in iowait.patches(rt).items():
+    for (owner, name), value in (iowait.patches(rt) | threads.patches(rt)).items():
         _set(owner, name, value)
+    rt.threads.adopt_main()
     stdin = _idle_stdin(rt, sys.stdin)
     if stdin is not None:
         _set(sys, "stdin", stdin)
@@ -335,7 +337,7 @@ def _make_condition_wait(rt: SimRuntime) -> Callable[..., bool]:
     original = threading.Condition.wait
 
     def wait(self: Any, timeout: float | None = None) -> bool:
-        if not rt._tracked():
+        if not rt.on_sim_time():
             return original(self, timeout)
         if not self._is_owned():
             raise RuntimeError("cannot wait on un-acquired lock")
@@ -350,7 +352,7 @@ def _make_condition_wait(rt: SimRuntime) -> Callable[..., bool]:
                 _remove(self._waiters, waiter)
             return bool(got)
         deadline = None if timeout is None else rt.now_ns() + round(timeout * NS_PER_S)
-        w: Waiter = rt.new_waiter(deadline_ns=deadline, lock=waiter)
+        w: Waiter = rt.new_waiter(Kind.CONDITION, deadline_ns=deadline, lock=waiter)
         saved = self._release_save()
         try:
             waiter.acquire()
@@ -422,7 +424,7 @@ class SimSelector(selectors.BaseSelector):
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
         rt = self._rt
-        if not rt._tracked():
+        if not rt.on_sim_time():
             return self._inner.select(timeout)
         if timeout is not None and timeout <= 0:
             if not self.timers_held:
@@ -437,7 +439,9 @@ class SimSelector(selectors.BaseSelector):
         # the epoll descriptor itself: the clock thread sees the loop's I/O (and its self-pipe, written by a
         # MAVSDK thread's call_soon_threadsafe) before it decides that phase 0 is over
         fileno = getattr(self._inner, "fileno", None)
-        w = rt.new_waiter(deadline_ns=deadline, wake=self.wake, rfds=(fileno(),) if fileno is not None else ())
+        w = rt.new_waiter(
+            Kind.LOOP, deadline_ns=deadline, wake=self.wake, rfds=(fileno(),) if fileno is not None else ()
+        )
         events = self._inner.select(None)
         if rt.loop_woken(w):
             return events
@@ -471,7 +475,7 @@ def _make_loop_class(rt: SimRuntime) -> type[asyncio.AbstractEventLoop]:
             """One iteration of the loop; in a phase's first round its due timers wait for the second
             (``SimRuntime.timers_held``): no timer is moved to the ready queue (an end time of -inf), and a
             ``select`` that would not wait only because of them waits for that round."""
-            held = rt.timers_held() and rt._tracked()
+            held = rt.timers_held() and rt.on_sim_time()
             self._selector.timers_held = held and not self._ready and not self._stopping
             self._clock_resolution = -math.inf if held else resolution
             super()._run_once()

@@ -76,7 +76,7 @@ class SimSocket(_original_socket):
         rt = INSTALLED.sockets
         if rt is None or timeout == 0.0:
             return op()
-        if not rt._tracked():  # a harness thread: the original blocking behaviour on the wall clock
+        if not rt.on_sim_time():  # a harness thread: the original blocking behaviour on the wall clock
             while True:
                 try:
                     return op()

@@ -76,7 +76,7 @@ class RadioSocket(SimSocket):
 
     def _sim_ready(self) -> bool:
         rt = INSTALLED.sockets
-        return self._radio_port is not None and rt is not None and rt.has_delivery(self._radio_port)
+        return self._radio_port is not None and rt is not None and rt.mail.has(self._radio_port)
 
     def _waits_on_inbox(self) -> bool:
         return self._radio_port is not None
@@ -87,7 +87,7 @@ class RadioSocket(SimSocket):
             return super().recvfrom(bufsize, flags)
 
         def radio_or_kernel() -> tuple[bytes, Any]:
-            d = rt.pop_delivery(port)
+            d = rt.mail.pop(port)
             if d is not None:
                 return d.payload[:bufsize], (radio_address(d.src), d.port)
             return _original_socket.recvfrom(self, bufsize, flags)

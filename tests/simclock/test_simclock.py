@@ -2,22 +2,22 @@
 
 from __future__ import annotations
 
+import _thread
 import asyncio
 import datetime
 import json
 import queue
 import socket
-import sys
 import threading
 import time
-from types import FrameType
 
 import pytest
 
 from harness.channel import Channel, ChannelConfig
 from harness.channel.drivers import run_fake_physics
-from harness.simclock import patch, runtime
+from harness.simclock import patch
 from harness.simclock.runtime import SimRuntime
+from harness.simclock.threads import HarnessThread, Role
 from tests.helpers import wait_until
 
 from .conftest import Procs
@@ -190,7 +190,7 @@ def test_a_thread_waiting_for_the_gate_is_never_counted_idle_without_being_queue
     def clock_thread_runs_now() -> None:
         with rt._mu:
             rt._open_gate_locked()
-            if rt._idle:  # the waiter counts idle: this phase 0 is over
+            if rt.threads.blocked:  # the waiter counts idle: this phase 0 is over
                 rt._gate_open = False
                 ended_without_it.append(True)
 
@@ -204,30 +204,73 @@ def test_a_thread_waiting_for_the_gate_is_never_counted_idle_without_being_queue
 
 
 def test_a_join_counts_idle_only_while_the_joined_thread_still_runs_python() -> None:
-    """``Thread.join`` ends when the joined thread's OS thread ends, after its Python part left
-    ``threading.enumerate()``: counted idle then, the phase closed and the join returned between phases, on the
-    wall clock (asyncio.run's executor shutdown ended a MAVSDK script one or two phases late in some runs)."""
+    """``Thread.join`` ends when the joined thread's OS thread ends, after its Python part is over: counted idle
+    then, the phase closed and the join returned between phases, on the wall clock (asyncio.run's executor shutdown
+    ended a MAVSDK script one or two phases late in some runs). The join registers a ``JOIN`` blocker: idle while
+    the joined thread is registered, busy from its end until the join returns."""
     rt = SimRuntime(epoch_ns=0, phase_period_ns=20_000_000)
-    release = threading.Event()
-    joined = threading.Thread(target=release.wait, daemon=True)
-    joined.start()
-    joiner = threading.Thread(target=joined.join, daemon=True)
-    joiner.start()
-    assert joiner.ident is not None
+    patch.install(rt)
+    hold = _thread.allocate_lock()
+    hold.acquire()
+    try:
+        rt._started = rt._gate_open = True  # in phase 0: waits of script threads are sim-time waits
+        joined = threading.Thread(target=hold.acquire, daemon=True)  # blocks in C: busy for the registry
+        joined.start()
+        joiner = threading.Thread(target=joined.join, daemon=True)
+        joiner.start()
+        wait_until(lambda: joiner.ident in rt.threads.blocked, timeout_s=5.0, what="the joiner waits in join")
+        with rt._mu:
+            busy = [e.thread for e in rt.threads.busy(())]
+            assert joined in busy and joiner not in busy, "joining a running thread is idle"
+            assert rt.threads.waits(joiner.ident or 0, ()) == "join"
+            rt.threads.end(joined.ident or 0)  # the joined thread's Python part is over, its OS thread not yet
+            assert rt.threads.waits(joiner.ident or 0, ()) is None, "a join of an ended thread is busy"
+        hold.release()
+        joiner.join(5.0)
+        assert not joiner.is_alive()
+        with rt._mu:
+            assert joiner.ident not in rt.threads.blocked
+            assert [e.thread for e in rt.threads.busy(())] == [threading.main_thread()]  # this test runs
+    finally:
+        patch.uninstall()
 
-    def joiner_frame() -> FrameType | None:
-        frame = sys._current_frames().get(joiner.ident or 0)
-        return frame if frame is not None and frame.f_code.co_name == "_wait_for_tstate_lock" else None
 
-    wait_until(lambda: joiner_frame() is not None, timeout_s=5.0, what="the joiner waits in join")
-    frame = joiner_frame()
-    assert frame is not None
-    with rt._mu:
-        assert joiner not in [t for t, _ in rt._busy_locked()], "joining a running thread is idle"
-    assert not runtime._joins_ended(frame, threading.enumerate())
-    assert runtime._joins_ended(frame, [t for t in threading.enumerate() if t is not joined])
-    release.set()
-    joiner.join(5.0)
+def test_threads_are_registered_when_they_start_with_the_role_their_code_gives_them() -> None:
+    """The registry, not a scan of ``threading.enumerate()``: a thread counts from ``Thread.start`` (busy while it
+    is being started), ends with its Python part; the harness's own threads and threads a C library made never
+    count, and their waits stay on the wall clock."""
+    rt = SimRuntime(epoch_ns=0, phase_period_ns=20_000_000)
+    patch.install(rt)
+    hold = _thread.allocate_lock()
+    hold.acquire()
+    seen: dict[str, object] = {}
+    try:
+        rt._started = rt._gate_open = True
+        script = threading.Thread(target=hold.acquire, daemon=True)
+        script.start()
+        harness_own = HarnessThread(target=lambda: seen.update(harness=rt.on_sim_time()))
+        harness_own.start()
+        harness_own.join(5.0)
+        done = _thread.allocate_lock()
+        done.acquire()
+
+        def foreign() -> None:  # made by C, as MAVSDK's threads are: never registered
+            seen["foreign"] = rt.on_sim_time()
+            done.release()
+
+        _thread.start_new_thread(foreign, ())
+        assert done.acquire(True, 5.0)
+        with rt._mu:
+            assert rt.threads.role(script.ident or 0) is Role.SCRIPT
+            assert [e.thread for e in rt.threads.busy(())] == [threading.main_thread(), script]
+        assert seen == {"harness": False, "foreign": False}
+        hold.release()
+        script.join(5.0)
+        with rt._mu:
+            assert script.ident not in rt.threads.threads
+            assert [e.thread for e in rt.threads.busy(())] == [threading.main_thread()]
+    finally:
+        patch.uninstall()
 
 
 def test_a_pool_starts_a_thread_for_work_no_waiting_worker_can_take() -> None:
