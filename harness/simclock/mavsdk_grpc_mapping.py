@@ -183,6 +183,7 @@ def native_to_message(value: Any, msg: Any) -> None:
 
 
 def set_field(msg: Any, f: Any, value: Any) -> None:
+    """Set the field ``f`` of ``msg`` from a native value (a list, for a repeated field); None leaves it unset."""
     if value is None:
         return
     if _is_repeated(f):
@@ -190,20 +191,18 @@ def set_field(msg: Any, f: Any, value: Any) -> None:
         for v in value:
             if f.message_type is not None:
                 native_to_message(v, target.add())
-            elif f.enum_type is not None:
-                target.append(enum_to_pb(f.enum_type, v))
             else:
-                target.append(_plain(f, v))
-        return
-    if f.message_type is not None:
+                target.append(_scalar_to_pb(f, v))
+    elif f.message_type is not None:
         native_to_message(value, getattr(msg, f.name))
-    elif f.enum_type is not None:
-        setattr(msg, f.name, enum_to_pb(f.enum_type, value))
     else:
-        setattr(msg, f.name, _plain(f, value))
+        setattr(msg, f.name, _scalar_to_pb(f, value))
 
 
-def _plain(f: Any, value: Any) -> Any:
+def _scalar_to_pb(f: Any, value: Any) -> Any:
+    """One native value of the non-message field ``f`` as protobuf takes it (enums by value name)."""
+    if f.enum_type is not None:
+        return enum_to_pb(f.enum_type, value)
     if isinstance(value, enum.Enum):
         value = value.value
     if f.type == f.TYPE_BYTES and isinstance(value, str):
@@ -234,7 +233,7 @@ def data_fields(desc: Any) -> list[Any]:
     return [f for f in desc.fields if f is not rf]
 
 
-def _set_result(native: Native, resp: Any, rf: Any, result: Any) -> None:
+def _set_result(resp: Any, rf: Any, result: Any) -> None:
     sub = getattr(resp, rf.name)
     enum_desc = rf.message_type.fields_by_name["result"].enum_type
     sub.result = enum_to_pb(enum_desc, result)
@@ -263,7 +262,7 @@ def fill_response(native: Native, resp: Any, value: Any) -> Any:
             else:
                 rest.append(item)
         items = rest
-        _set_result(native, resp, rf, result if result is not None else result_cls["SUCCESS"])
+        _set_result(resp, rf, result if result is not None else result_cls["SUCCESS"])
     items = [i for i in items if i is not None]
     if len(fields) == 1 and len(items) == 1:
         set_field(resp, fields[0], items[0])
@@ -284,7 +283,7 @@ def error_response(native: Native, resp: Any, exc: BaseException) -> bool:
     if rf is None or not isinstance(result, enum.Enum):
         return False
     try:
-        _set_result(native, resp, rf, result)
+        _set_result(resp, rf, result)
     except ValueError:
         return False
     return True
