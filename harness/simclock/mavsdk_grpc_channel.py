@@ -15,10 +15,10 @@ one ``System()``). Which native method, derived, not written per method:
 - the request's fields, in order, are its arguments, and its answer fills the response
   (:mod:`.mavsdk_grpc_mapping`).
 
-Written here by hand: ``core``, which has no native plugin (its connection-state stream is the native system's
-``is_connected``, the current state first, as mavsdk_server sends it); ``tune.play_tune``, whose native binding
-is broken; and what the native core lacks (:data:`NOT_AVAILABLE`), which raises
-:class:`~.mavsdk_grpc_mapping.NotAvailableNatively` when called, naming the method.
+Written here by hand (:data:`HAND_WRITTEN`, called as the native method would be): ``core``, which has no native
+plugin (its connection-state stream is the native system's ``is_connected``, the current state first, as
+mavsdk_server sends it), and ``tune.play_tune``, whose native binding is broken. What the native core lacks
+(:data:`NOT_AVAILABLE`) raises :class:`~.mavsdk_grpc_mapping.NotAvailableNatively` when called, naming the method.
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ from harness.simclock.mavsdk_grpc_mapping import (
     error_response,
     field_to_native,
     fill_response,
-    native_to_message,
     plugin_class,
     snake,
     split_proto_name,
@@ -118,7 +117,8 @@ def native_method_name(cls: type, rpc: str, streaming: bool) -> str | None:
 
 
 async def _connection_state(backend: Backend) -> AsyncIterator[Any]:
-    """core.connection_state(): the current state first (as mavsdk_server sends it), then every change."""
+    """core.connection_state(): the current state first (as mavsdk_server sends it), then every change (as the
+    native ``ConnectionState`` would be, had the native core a ``core`` plugin)."""
     raw = backend.system._system
     loop = asyncio.get_running_loop()
     queue: asyncio.Queue[bool] = asyncio.Queue()
@@ -128,16 +128,11 @@ async def _connection_state(backend: Backend) -> AsyncIterator[Any]:
 
     handle = raw.subscribe_is_connected(on_change)
     try:
-        yield SimpleNamespace(connection_state=SimpleNamespace(is_connected=bool(raw.is_connected())))
+        yield SimpleNamespace(is_connected=bool(raw.is_connected()))
         while True:
-            connected = await queue.get()
-            yield SimpleNamespace(connection_state=SimpleNamespace(is_connected=connected))
+            yield SimpleNamespace(is_connected=await queue.get())
     finally:
         raw.unsubscribe_is_connected(handle)
-
-
-_SPECIAL: dict[str, Callable[[Backend], Any]] = {"core.SubscribeConnectionState": _connection_state}
-"""RPCs answered here, not by a native plugin; they yield whole responses (as namespaces)."""
 
 
 async def _play_tune(backend: Backend, tune_description: Any) -> Any:
@@ -173,8 +168,12 @@ async def _play_tune(backend: Backend, tune_description: Any) -> Any:
     return None
 
 
-_FIXED: dict[str, Callable[..., Any]] = {"tune.PlayTune": _play_tune}
-"""Unary RPCs whose native binding is broken, called here instead (``fn(backend, *native_args)``)."""
+HAND_WRITTEN: dict[str, Callable[..., Any]] = {
+    "core.SubscribeConnectionState": _connection_state,
+    "tune.PlayTune": _play_tune,
+}
+"""RPCs answered here as a native method would (``fn(backend, *native_args)``): ``core``, which has no native
+plugin, and those whose native binding is broken."""
 
 
 def _method(path: str) -> tuple[str, str, Any]:
@@ -187,46 +186,57 @@ def _method(path: str) -> tuple[str, str, Any]:
     return plugin, rpc, desc
 
 
-def _request_args(backend: Backend, request: Any) -> list[Any]:
-    return [field_to_native(backend.native, f, getattr(request, f.name)) for f in request.DESCRIPTOR.fields]
-
-
 def resolve(backend: Backend, plugin: str, rpc: str, streaming: bool) -> Callable[..., Any]:
+    """What answers ``plugin.Rpc``: a hand-written RPC, or the native method (its coroutine function, or its async
+    generator function for a stream)."""
+    own = HAND_WRITTEN.get(f"{plugin}.{rpc}")
+    if own is not None:
+        return functools.partial(own, backend)
+    server = "run with HARNESS_MAVSDK_GRPC=server to use mavsdk_server"
     why = not_available(plugin, rpc)
     if why:
         raise NotAvailableNatively(
-            f"{plugin}.{snake(rpc)}() is not available on the native MAVSDK core ({why}); "
-            "run with HARNESS_MAVSDK_GRPC=server to use mavsdk_server"
+            f"{plugin}.{snake(rpc)}() is not available on the native MAVSDK core ({why}); {server}"
         )
     inst = backend.plugin(plugin)
     name = native_method_name(type(inst), rpc, streaming)
     if name is None:
         raise NotAvailableNatively(
-            f"{plugin}.{snake(rpc)}() has no counterpart in the native MAVSDK core "
-            f"({type(inst).__name__}); run with HARNESS_MAVSDK_GRPC=server to use mavsdk_server"
+            f"{plugin}.{snake(rpc)}() has no counterpart in the native MAVSDK core ({type(inst).__name__}); {server}"
         )
     fn: Callable[..., Any] = getattr(inst, name)
     return fn
 
 
-class _Unary:
+def _start(backend: Backend, path: str, request: Any, streaming: bool) -> tuple[str, Any]:
+    """Start the native call of the RPC at ``path`` with the request's fields as its arguments:
+    (``plugin.Rpc``, its coroutine, or its async generator for a stream)."""
+    plugin, rpc, _ = _method(path)
+    fn = resolve(backend, plugin, rpc, streaming)
+    args = [field_to_native(backend.native, f, getattr(request, f.name)) for f in request.DESCRIPTOR.fields]
+    return f"{plugin}.{rpc}", fn(*args)
+
+
+class _Rpc:
+    """One RPC of a stub (``stub.Arm``): its path and response class, on the channel."""
+
     def __init__(self, channel: NativeChannel, path: str, response_cls: type) -> None:
         self._channel, self._path, self._response_cls = channel, path, response_cls
 
+
+class _Unary(_Rpc):
     def __call__(self, request: Any, **_kw: Any) -> Any:
         return self._call(request)
 
     async def _call(self, request: Any) -> Any:
         backend = self._channel.backend
-        plugin, rpc, _ = _method(self._path)
-        fixed = _FIXED.get(f"{plugin}.{rpc}")
-        fn = functools.partial(fixed, backend) if fixed else resolve(backend, plugin, rpc, streaming=False)
         resp = self._response_cls()
+        name, call = _start(backend, self._path, request, streaming=False)
         try:
-            value = await fn(*_request_args(backend, request))
+            value = await call
         except Exception as e:
             if error_response(backend.native, resp, e):
-                log.debug("%s.%s: %s", plugin, rpc, e)
+                log.debug("%s: %s", name, e)
                 return resp
             raise
         return fill_response(backend.native, resp, value)
@@ -235,8 +245,8 @@ class _Unary:
 class _StreamCall:
     """One server-streaming call: an async iterator of responses with gRPC's ``cancel()``."""
 
-    def __init__(self, channel: NativeChannel, path: str, response_cls: type, request: Any) -> None:
-        self._channel, self._path, self._response_cls, self._request = channel, path, response_cls, request
+    def __init__(self, stream: _Stream, request: Any) -> None:
+        self._stream, self._request = stream, request
         self._gen: Any = None
         self._cancelled = False
 
@@ -251,21 +261,9 @@ class _StreamCall:
         return await self._gen.__anext__()
 
     async def _responses(self) -> AsyncIterator[Any]:
-        backend = self._channel.backend
-        plugin, rpc, _ = _method(self._path)
-        special = _SPECIAL.get(f"{plugin}.{rpc}")
-        if special is not None:
-            gen = special(backend)
-            try:
-                async for ns in gen:
-                    resp = self._response_cls()
-                    native_to_message(ns, resp)
-                    yield resp
-            finally:
-                await gen.aclose()
-            return
-        fn = resolve(backend, plugin, rpc, streaming=True)
-        gen = fn(*_request_args(backend, self._request))
+        stream = self._stream
+        backend = stream._channel.backend
+        _, gen = _start(backend, stream._path, self._request, streaming=True)
         try:
             while True:
                 try:
@@ -273,12 +271,12 @@ class _StreamCall:
                 except StopAsyncIteration:
                     return
                 except Exception as e:
-                    resp = self._response_cls()
+                    resp = stream._response_cls()
                     if error_response(backend.native, resp, e):
                         yield resp  # the gRPC API raises its own error for it
                         return
                     raise
-                yield fill_response(backend.native, self._response_cls(), item)
+                yield fill_response(backend.native, stream._response_cls(), item)
         finally:
             await gen.aclose()
 
@@ -308,12 +306,9 @@ class _StreamCall:
 _closing: set[asyncio.Task[None]] = set()
 
 
-class _Stream:
-    def __init__(self, channel: NativeChannel, path: str, response_cls: type) -> None:
-        self._channel, self._path, self._response_cls = channel, path, response_cls
-
+class _Stream(_Rpc):
     def __call__(self, request: Any, **_kw: Any) -> _StreamCall:
-        return _StreamCall(self._channel, self._path, self._response_cls, request)
+        return _StreamCall(self, request)
 
 
 def _response_class(deserializer: Any, path: str) -> type:

@@ -68,21 +68,25 @@ def test_the_grpc_system_exposes_the_plugins_we_map() -> None:
 @pytest.mark.parametrize("plugin", sorted(PLUGINS))
 def test_every_public_grpc_method_maps_to_a_native_one_or_is_declared_unavailable(plugin: str) -> None:
     """Unary RPC ``Foo`` → native ``foo(request fields…)``; stream ``SubscribeFoo`` → native async generator
-    ``subscribe_foo`` (or ``foo``); or listed in ``NOT_AVAILABLE`` with the reason."""
+    ``subscribe_foo`` (or ``foo``); or hand-written alike (``fn(backend, request fields…)``); or listed in
+    ``NOT_AVAILABLE`` with the reason."""
     methods = public_methods(PLUGINS[plugin])
     assert methods, plugin
     descs = {m.name: m for s in services(plugin) for m in s.methods}
     native_cls = mp.plugin_class(NATIVE, plugin)
     for public, rpc in methods.items():
         desc = descs[rpc]
-        if ch.not_available(plugin, rpc) or f"{plugin}.{rpc}" in ch._SPECIAL:
+        if ch.not_available(plugin, rpc):
             continue
-        assert native_cls is not None, f"{plugin}: no native plugin and not declared unavailable"
-        name = ch.native_method_name(native_cls, rpc, desc.server_streaming)
-        assert name is not None, f"{plugin}.{public}() ({rpc}) has no native counterpart"
+        fn = ch.HAND_WRITTEN.get(f"{plugin}.{rpc}")
+        if fn is None:
+            assert native_cls is not None, f"{plugin}: no native plugin and not declared unavailable"
+            name = ch.native_method_name(native_cls, rpc, desc.server_streaming)
+            assert name is not None, f"{plugin}.{public}() ({rpc}) has no native counterpart"
+            fn = getattr(native_cls, name)
         kind = inspect.isasyncgenfunction if desc.server_streaming else inspect.iscoroutinefunction
-        assert kind(getattr(native_cls, name)), f"{plugin}.{name}: not a {kind.__name__}"
-        params = list(inspect.signature(getattr(native_cls, name)).parameters)[1:]
+        assert kind(fn), f"{plugin}.{fn.__name__}: not a {kind.__name__}"
+        params = list(inspect.signature(fn).parameters)[1:]  # after self, or a hand-written RPC's backend
         assert params == [f.name for f in desc.input_type.fields], f"{plugin}.{public}: {params}"
 
 
@@ -95,8 +99,9 @@ def test_what_is_not_available_is_named_and_explained() -> None:
     # the whole-plugin entries really have no native plugin; the rest of core is served here
     assert mp.plugin_class(NATIVE, "tracking_server") is None
     assert mp.plugin_class(NATIVE, "component_metadata_server") is None
-    assert "core.SubscribeConnectionState" in ch._SPECIAL
-    for key in ch._FIXED:  # native bindings worked around (tune.play_tune: its C struct is declared wrong)
+    assert "core.SubscribeConnectionState" in ch.HAND_WRITTEN
+    # and the native bindings worked around (tune.play_tune: its C struct is declared wrong)
+    for key in ch.HAND_WRITTEN:
         plugin, rpc = key.split(".")
         assert rpc in {m.name for s in services(plugin) for m in s.methods}
 
