@@ -154,10 +154,7 @@ def install(rewrite_url: Callable[[str], str]) -> None:
         self._harness_backend = None
 
     async def connect(self: Any, system_address: str | None = None) -> None:
-        old = getattr(self, "_harness_backend", None)
-        if old is not None:
-            _release(old)
-            self._harness_backend = None
+        _stop_mavsdk_server(self)  # a second connect() starts afresh, as mavsdk_server's System does
         url = rewrite_url(system_address or DEFAULT_URL)
         log.info("mavsdk (gRPC API on the native core): connecting to %s", url)
         backend = await start_backend(native, url, self._sysid, self._compid)
@@ -167,6 +164,7 @@ def install(rewrite_url: Callable[[str], str]) -> None:
         self._plugins = {name: cls(manager) for name, cls in plugins.items()}
 
     def _stop_mavsdk_server(self: Any) -> None:
+        """Release this System's native core (what stopping its mavsdk_server did)."""
         backend = getattr(self, "_harness_backend", None)
         if backend is not None:
             self._harness_backend = None
