@@ -201,9 +201,9 @@ def install(script: Path, ep: VehicleEndpoints | None, api: MavsdkApi | None = N
             ) from None
         backend = grpc_backend()
         if backend == "native":
-            from harness.simclock import mavsdk_grpc_native
+            from harness.simclock import mavsdk_grpc_mapping
 
-            mavsdk_grpc_native.load_native()  # before ``mavsdk`` becomes mavsdk_grpc for the script
+            mavsdk_grpc_mapping.load_native()  # before ``mavsdk`` becomes mavsdk_grpc for the script
             if not on_sim_clock() and _shim_unavailable():
                 backend = "server"  # no C compiler: today's path, mavsdk_server with its holds (said once)
         if api == MavsdkApi.GRPC:

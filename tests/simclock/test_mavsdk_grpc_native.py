@@ -1,4 +1,4 @@
-"""The gRPC API on the native core (``harness.simclock.mavsdk_grpc_native``), without a vehicle: the mapping of every
+"""The gRPC API on the native core (``harness.simclock.mavsdk_grpc_*``), without a vehicle: the mapping of every
 plugin the gRPC ``System`` exposes, the conversions field by field, errors and streams through the gRPC API's own
 plugin classes on a native channel whose native plugins are fakes."""
 
@@ -32,9 +32,11 @@ from mavsdk_grpc import offboard as g_offboard
 from mavsdk_grpc import telemetry as g_telemetry
 from mavsdk_grpc.system import System as GrpcSystem
 
+from harness.simclock import mavsdk_grpc_channel as ch
+from harness.simclock import mavsdk_grpc_mapping as mp
 from harness.simclock import mavsdk_grpc_native as gn
 
-NATIVE = gn.load_native()
+NATIVE = mp.load_native()
 PLUGINS = gn.grpc_plugins(GrpcSystem)
 
 
@@ -66,35 +68,40 @@ def test_the_grpc_system_exposes_the_plugins_we_map() -> None:
 @pytest.mark.parametrize("plugin", sorted(PLUGINS))
 def test_every_public_grpc_method_maps_to_a_native_one_or_is_declared_unavailable(plugin: str) -> None:
     """Unary RPC ``Foo`` → native ``foo(request fields…)``; stream ``SubscribeFoo`` → native async generator
-    ``subscribe_foo`` (or ``foo``); or listed in ``NOT_AVAILABLE`` with the reason."""
+    ``subscribe_foo`` (or ``foo``); or hand-written alike (``fn(backend, request fields…)``); or listed in
+    ``NOT_AVAILABLE`` with the reason."""
     methods = public_methods(PLUGINS[plugin])
     assert methods, plugin
     descs = {m.name: m for s in services(plugin) for m in s.methods}
-    native_cls = gn.plugin_class(NATIVE, plugin)
+    native_cls = mp.plugin_class(NATIVE, plugin)
     for public, rpc in methods.items():
         desc = descs[rpc]
-        if gn.not_available(plugin, rpc) or f"{plugin}.{rpc}" in gn._SPECIAL:
+        if ch.not_available(plugin, rpc):
             continue
-        assert native_cls is not None, f"{plugin}: no native plugin and not declared unavailable"
-        name = gn.native_method_name(native_cls, rpc, desc.server_streaming)
-        assert name is not None, f"{plugin}.{public}() ({rpc}) has no native counterpart"
+        fn = ch.HAND_WRITTEN.get(f"{plugin}.{rpc}")
+        if fn is None:
+            assert native_cls is not None, f"{plugin}: no native plugin and not declared unavailable"
+            name = ch.native_method_name(native_cls, rpc, desc.server_streaming)
+            assert name is not None, f"{plugin}.{public}() ({rpc}) has no native counterpart"
+            fn = getattr(native_cls, name)
         kind = inspect.isasyncgenfunction if desc.server_streaming else inspect.iscoroutinefunction
-        assert kind(getattr(native_cls, name)), f"{plugin}.{name}: not a {kind.__name__}"
-        params = list(inspect.signature(getattr(native_cls, name)).parameters)[1:]
+        assert kind(fn), f"{plugin}.{fn.__name__}: not a {kind.__name__}"
+        params = list(inspect.signature(fn).parameters)[1:]  # after self, or a hand-written RPC's backend
         assert params == [f.name for f in desc.input_type.fields], f"{plugin}.{public}: {params}"
 
 
 def test_what_is_not_available_is_named_and_explained() -> None:
-    for key, why in gn.NOT_AVAILABLE.items():
+    for key, why in ch.NOT_AVAILABLE.items():
         plugin, rpc = key.split(".")
         assert plugin in PLUGINS and why
         if rpc != "*":
             assert rpc in {m.name for s in services(plugin) for m in s.methods}
     # the whole-plugin entries really have no native plugin; the rest of core is served here
-    assert gn.plugin_class(NATIVE, "tracking_server") is None
-    assert gn.plugin_class(NATIVE, "component_metadata_server") is None
-    assert "core.SubscribeConnectionState" in gn._SPECIAL
-    for key in gn._FIXED:  # native bindings worked around (tune.play_tune: its C struct is declared wrong)
+    assert mp.plugin_class(NATIVE, "tracking_server") is None
+    assert mp.plugin_class(NATIVE, "component_metadata_server") is None
+    assert "core.SubscribeConnectionState" in ch.HAND_WRITTEN
+    # and the native bindings worked around (tune.play_tune: its C struct is declared wrong)
+    for key in ch.HAND_WRITTEN:
         plugin, rpc = key.split(".")
         assert rpc in {m.name for s in services(plugin) for m in s.methods}
 
@@ -116,7 +123,7 @@ def _all_enums_and_messages() -> tuple[list[Any], list[Any]]:
             walk(nested)
 
     for plugin in PLUGINS:
-        if gn.not_available(plugin, "*") or plugin == "core":  # core: served here, no native plugin
+        if ch.not_available(plugin, "*") or plugin == "core":  # core: served here, no native plugin
             continue
         pb = importlib.import_module(f"mavsdk_grpc.{plugin}_pb2")
         enums.extend(pb.DESCRIPTOR.enum_types_by_name.values())
@@ -129,22 +136,22 @@ def test_every_enum_maps_by_name_both_ways() -> None:
     enums, _ = _all_enums_and_messages()
     assert len(enums) > 50
     for e in enums:
-        cls = gn.native_type(NATIVE, e.full_name)
+        cls = mp.native_type(NATIVE, e.full_name)
         assert issubclass(cls, enum.Enum), e.full_name
         for v in e.values:
-            native = gn.enum_to_native(NATIVE, e, v.number)
-            assert gn.enum_to_pb(e, native) == v.number, (e.full_name, v.name)
+            native = mp.enum_to_native(NATIVE, e, v.number)
+            assert mp.enum_to_pb(e, native) == v.number, (e.full_name, v.name)
 
 
 def test_every_data_message_has_a_native_class_with_its_fields() -> None:
     _, messages = _all_enums_and_messages()
     checked = 0
     for m in messages:
-        if m.name.endswith(("Request", "Response")) or gn.result_field(m) is not None:
+        if m.name.endswith(("Request", "Response")) or mp.result_field(m) is not None:
             continue
         if m.name.endswith("Result") and "result" in m.fields_by_name:
             continue  # results travel as the native result enums
-        obj = gn.native_type(NATIVE, m.full_name)()
+        obj = mp.native_type(NATIVE, m.full_name)()
         missing = [f.name for f in m.fields if not hasattr(obj, f.name)]
         assert not missing, f"{m.full_name}: native {type(obj).__name__} lacks {missing}"
         checked += 1
@@ -175,7 +182,7 @@ def test_mission_plan_round_trip_field_by_field() -> None:
     plan = mission_plan()
     pb = mission_pb2.MissionPlan()
     plan.translate_to_rpc(pb)
-    native = gn.message_to_native(NATIVE, pb)
+    native = mp.message_to_native(NATIVE, pb)
     nm = NATIVE.types["mission"]
     assert isinstance(native, nm.MissionPlan) and len(native.mission_items) == 2
     first = native.mission_items[0]
@@ -185,7 +192,7 @@ def test_mission_plan_round_trip_field_by_field() -> None:
     assert (first.latitude_deg, first.relative_altitude_m, first.is_fly_through) == (47.39, 10.0, True)
     assert math.isnan(native.mission_items[1].speed_m_s)
     back = mission_pb2.MissionPlan()
-    gn.native_to_message(native, back)
+    mp.native_to_message(native, back)
     again = g_mission.MissionPlan.translate_from_rpc(back)
     for a, b in zip(plan.mission_items, again.mission_items, strict=True):
         for name in vars(a):
@@ -212,9 +219,9 @@ def test_offboard_setpoint_reaches_the_native_method_as_its_class() -> None:
 
 def fake_drone(plugins: dict[str, Any]) -> Any:
     """A gRPC ``System`` whose plugins run on a native channel with the given fake native plugins."""
-    backend = gn.Backend(NATIVE, None, None)
+    backend = ch.Backend(NATIVE, None, None)
     backend._plugins.update(plugins)
-    manager = gn._PluginManager(gn.NativeChannel(backend))
+    manager = gn._PluginManager(ch.NativeChannel(backend))
     drone = GrpcSystem.__new__(GrpcSystem)
     drone._plugins = {name: cls(manager) for name, cls in PLUGINS.items()}
     drone._server_process = None
@@ -349,7 +356,7 @@ def test_connection_state_sends_the_current_state_first() -> None:
 )
 def test_what_the_native_core_lacks_fails_at_call_time_naming_it(plugin: str, call: Any) -> None:
     drone = fake_drone({})
-    with pytest.raises(gn.NotAvailableNatively, match=rf"{plugin}\.\w+\(\).*HARNESS_MAVSDK_GRPC=server"):
+    with pytest.raises(mp.NotAvailableNatively, match=rf"{plugin}\.\w+\(\).*HARNESS_MAVSDK_GRPC=server"):
         asyncio.run(call(drone))
 
 
@@ -369,7 +376,7 @@ def test_install_gives_the_script_the_grpc_api_on_the_chosen_backend(tmp_path: P
     probe = f"""
 import sys
 from pathlib import Path
-from harness.simclock import mavsdk_compat, mavsdk_grpc_native as gn
+from harness.simclock import mavsdk_compat, mavsdk_grpc_mapping as mp
 assert mavsdk_compat.install(Path({str(script)!r}), None) == "grpc"
 import mavsdk, mavsdk.telemetry
 from mavsdk import System
@@ -378,7 +385,7 @@ native = getattr(System, "_harness_native", False)
 server = getattr(System, "_harness_patched", False)
 print("native" if native and not server else "server" if server and not native else "both?")
 if native:
-    assert hasattr(gn._native.mavsdk, "Mavsdk") and "telemetry" in gn._native.plugins
+    assert hasattr(mp._native.mavsdk, "Mavsdk") and "telemetry" in mp._native.plugins
 """
     env = {**os.environ, "HARNESS_MAVSDK_GRPC": backend}
     out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=60)
