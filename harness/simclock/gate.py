@@ -52,7 +52,7 @@ class Gate:
         self.waits_released = 0
         self.native: NativeClock | None = None
         """The C threads of the process on the sim clock (``simtime.c``, ``native.attach``): they take part in the
-        idle decision, and what MAVSDK's send the vehicle is settled like the script's own MAVLink."""
+        idle decision, and what MAVSDK's threads send the vehicle is settled like the script's own MAVLink."""
 
     # -- reading the clock (any thread) --------------------------------------------------------
 
