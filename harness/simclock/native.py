@@ -1,4 +1,5 @@
-"""A C library's threads on the sim clock: ``simtime.c``, built once per machine, GOT-patched into the library.
+"""A C library's threads on the sim clock: ``simtime.c`` (and its parts), built once per machine, GOT-patched into the
+library.
 
 MAVSDK's native core (``mavsdk/lib/libcmavsdk.so``, which both MAVSDK APIs run on in a mission) is linked
 dynamically against libc, with libstdc++ inside it: every clock read, sleep, condition variable, futex, poll,
@@ -6,9 +7,9 @@ receive and thread it makes goes through its own GOT. :func:`attach` rewrites th
 ``simtime.c``, so that the library's timers, timeouts and waits follow sim time and its threads take part in
 the phase-0 idle decision of :class:`~harness.simclock.runtime.SimRuntime` (see ``docs/simclock.md``).
 
-The shared object is compiled when the package is built (``setup.py``: it ships in the wheel beside
-``simtime.c``, named by the source's hash, ``simtime-<hash>.so``). Where a build has none (no C compiler when it
-was built, or ``simtime.c`` edited since), it is compiled with the machine's C compiler the first time it is
+The shared object is compiled when the package is built (``setup.py``: it ships in the wheel beside its sources,
+named by their hash, ``simtime-<hash>.so``). Where a build has none (no C compiler when it was built, or a source
+edited since), it is compiled with the machine's C compiler the first time it is
 needed (about 0.3 s) into the user's cache directory, keyed the same way; a launcher builds it before it starts
 missions, so a run of a hundred missions compiles once. Without either the library keeps the wall clock: one
 warning says so, and everything else works as before.
@@ -26,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.simclock.shim import CHILD_SOURCE, build
+from harness.simclock.shim import CHILD, build
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +37,7 @@ NO_DEADLINE = (1 << 63) - 1
 def build_all() -> None:
     """Build the mission's side and the child processes' side (once per machine; no-op when cached)."""
     if sys.platform.startswith("linux") and build() is not None:
-        build(CHILD_SOURCE)
+        build(CHILD)
 
 
 @dataclass(eq=False)
@@ -167,7 +168,7 @@ def attach_process(epoch_ns: int, now_ns: int, forget_python: Callable[[], None]
     clock = _shim(epoch_ns, now_ns)
     if clock is None:
         return None
-    child_lib = build(CHILD_SOURCE)  # before the process's own waits for a child (the compiler) are sim-time waits
+    child_lib = build(CHILD)  # before the process's own waits for a child (the compiler) are sim-time waits
     clock.patched += int(clock.lib.hs_patch_process())
     log.debug("the process: %d calls on the sim clock", clock.patched)
     if child_lib is not None:

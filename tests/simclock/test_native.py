@@ -256,6 +256,26 @@ def test_poll_with_a_timeout_is_a_timed_wait(lib: tuple[ctypes.CDLL, native.Nati
     assert test_lib.poll_done_at() - t0 == 260 * MS  # 250 ms on a 20 ms grid
 
 
+def test_a_shims_name_hashes_every_file_it_is_built_from(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    for path in shim.FOLDER.iterdir():
+        if path.suffix in (".c", ".h"):
+            shutil.copy(path, tmp_path / path.name)
+    monkeypatch.setattr(shim, "FOLDER", tmp_path)
+    names = {s.stem: shim.shim_name(s) for s in shim.SHIMS}
+    assert {p.name for p in shim.MISSION.files()} >= {"simtime.c", "simtime.h", "simcommon.h", "simtime_patch.c"}
+    assert {p.name for p in shim.CHILD.files()} == {"simchild.c", "simcommon.h"}
+
+    with (tmp_path / "simcommon.h").open("a") as f:
+        f.write("/* shared by both */\n")
+    edited = {s.stem: shim.shim_name(s) for s in shim.SHIMS}
+    assert all(edited[stem] != names[stem] for stem in names), "a shared header renames both shims"
+
+    with (tmp_path / "simtime_io.c").open("a") as f:
+        f.write("/* the mission's only */\n")
+    assert shim.shim_name(shim.MISSION) != edited["simtime"]
+    assert shim.shim_name(shim.CHILD) == edited["simchild"]
+
+
 def test_without_a_compiler_the_library_keeps_the_wall_clock(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
