@@ -34,6 +34,36 @@ log = logging.getLogger(__name__)
 NO_DEADLINE = (1 << 63) - 1
 
 
+class _State(ctypes.Structure):
+    """``hs_state`` (simtime.h)."""
+
+    _fields_ = (
+        ("generation", ctypes.c_uint64),
+        ("busy", ctypes.c_int64),
+        ("sent", ctypes.c_uint64),
+        ("next_deadline", ctypes.c_int64),
+        ("waits_for_io", ctypes.c_int64),
+        ("nwaiting", ctypes.c_int64),
+    )
+
+
+@dataclass(frozen=True)
+class NativeState:
+    """The shim's state in one look (``hs_snapshot``, under its lock): what :meth:`NativeClock.generation`,
+    :meth:`~NativeClock.busy`, :meth:`~NativeClock.sent`, :meth:`~NativeClock.next_deadline_ns` and
+    :meth:`~NativeClock.waits_for_io` answer, and the threads :meth:`~NativeClock.thread_waiting` answers True for."""
+
+    generation: int
+    busy: int
+    """Threads the shim tracks (the library's, C extensions', child processes) that are not waiting."""
+    sent: int
+    next_deadline_ns: int
+    """The earliest sim deadline of a wait or an armed timer (``NO_DEADLINE``: none)."""
+    waits_for_io: bool
+    waiting: frozenset[int]
+    """The threads (``threading`` idents, pthread_t) inside a wait of the shim that has not ended."""
+
+
 def build_all() -> None:
     """Build the mission's side and the child processes' side (once per machine; no-op when cached)."""
     if sys.platform.startswith("linux") and build() is not None:
@@ -89,6 +119,25 @@ class NativeClock:
     def generation(self) -> int:
         return int(self.lib.hs_generation())
 
+    def snapshot(self) -> NativeState:
+        """The shim's state in one look, taken under its lock (five calls could each see another)."""
+        state = _State()
+        room = 64
+        while True:
+            idents = (ctypes.c_uint64 * room)()
+            n = int(self.lib.hs_snapshot(ctypes.byref(state), idents, room))
+            if n <= room:
+                break
+            room = 2 * n  # more threads wait than there was room for: look again
+        return NativeState(
+            generation=state.generation,
+            busy=state.busy,
+            sent=state.sent,
+            next_deadline_ns=state.next_deadline,
+            waits_for_io=bool(state.waits_for_io),
+            waiting=frozenset(idents[:n]),
+        )
+
     def wait_change(self, generation: int, timeout_ns: int) -> None:
         self.lib.hs_wait_change(generation, timeout_ns)
 
@@ -127,6 +176,7 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.hs_thread_waiting.argtypes = [u64]
     lib.hs_sent.restype = u64
     lib.hs_generation.restype = u64
+    lib.hs_snapshot.argtypes = [ctypes.POINTER(_State), ctypes.POINTER(u64), ctypes.c_int]
     lib.hs_try_close.argtypes = [u64]
     lib.hs_wait_change.argtypes = [u64, i64]
     lib.hs_wait_library_idle.argtypes = [i64]

@@ -6,7 +6,7 @@
  *   simtime_clock.c     hooks: clocks, sleeps, condition variables, futexes, semaphores, timerfds
  *   simtime_io.c        hooks: poll/epoll/select, blocking receives and accept, sends
  *   simtime_children.c  child processes: the children's server, fork/spawn/wait
- *   simtime_control.c   the clock thread's side (hs_configure ... hs_describe), called through ctypes
+ *   simtime_control.c   the clock thread's side (hs_configure ... hs_describe, hs_snapshot), called through ctypes
  *   simtime_patch.c     the GOT patching (hs_patch, hs_patch_process, hs_become_child) and the hook tables
  * and simcommon.h, which simchild.c shares. It is compiled with -fvisibility=hidden: only what is marked HS_API
  * (the functions harness.simclock.native calls) is exported; everything else here is internal to the object.
@@ -208,6 +208,16 @@ pid_t hs_waitpid(pid_t pid, int *status, int options);
 
 /* -- the API (exported) ------------------------------------------------------------------------------ */
 
+/* One look at the shim's state, taken under `mu` in one call (hs_snapshot). */
+typedef struct {
+    uint64_t generation;    /* hs_generation */
+    int64_t busy;           /* hs_busy: busy tracked threads and children */
+    uint64_t sent;          /* hs_sent */
+    int64_t next_deadline;  /* hs_next_deadline (NO_DEADLINE: none) */
+    int64_t waits_for_io;   /* hs_waits_for_io */
+    int64_t nwaiting;       /* the threads for which hs_thread_waiting is 1 (all of them, however many fit) */
+} hs_state;
+
 HS_API void hs_configure(int64_t epoch, int64_t t);
 HS_API void hs_begin(int64_t t);
 HS_API int hs_release_ready(void);
@@ -221,6 +231,7 @@ HS_API int hs_waits_for_io(void);
 HS_API int hs_thread_waiting(uint64_t self);
 HS_API uint64_t hs_sent(void);
 HS_API uint64_t hs_generation(void);
+HS_API int hs_snapshot(hs_state *out, uint64_t *waiting, int cap);
 HS_API void hs_poke(void);
 HS_API void hs_wait_change(uint64_t g, int64_t timeout_ns);
 HS_API void hs_close(void);

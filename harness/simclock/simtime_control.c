@@ -1,7 +1,7 @@
 /*
  * simtime_control.c: the clock thread's side of the shim (see simtime.c), called through ctypes
  * (harness.simclock.native): a phase begins (hs_begin), ends when it can (hs_try_close), and what the runtime
- * asks about the library's threads.
+ * asks about the library's threads, one by one or in one snapshot (hs_snapshot).
  */
 #include "simtime.h"
 
@@ -121,8 +121,7 @@ void hs_pause(void) {
 void hs_reopen(void) { hs_begin(INT64_MIN); }
 
 /* The earliest sim deadline of a waiting thread or an armed timer (NO_DEADLINE: none). */
-int64_t hs_next_deadline(void) {
-    pthread_mutex_lock(&mu);
+static int64_t next_deadline_locked(void) {
     int64_t d = NO_DEADLINE;
     for (tstate *th = threads; th; th = th->next) {
         if (th->waiting && !th->released && th->deadline < d)
@@ -132,32 +131,71 @@ int64_t hs_next_deadline(void) {
         if (timers[i].fd && timers[i].deadline < d)
             d = timers[i].deadline;
     }
+    return d;
+}
+
+int64_t hs_next_deadline(void) {
+    pthread_mutex_lock(&mu);
+    int64_t d = next_deadline_locked();
     pthread_mutex_unlock(&mu);
     return d;
 }
 
 /* Whether some waiting thread waits for descriptors (MAVLink arrives at every phase: no lookahead). */
-int hs_waits_for_io(void) {
-    pthread_mutex_lock(&mu);
+static int waits_for_io_locked(void) {
     int r = 0;
     for (tstate *th = threads; th; th = th->next)
         r |= th->waiting && th->nfds > 0;
+    return r;
+}
+
+int hs_waits_for_io(void) {
+    pthread_mutex_lock(&mu);
+    int r = waits_for_io_locked();
     pthread_mutex_unlock(&mu);
     return r;
 }
 
+/* The state of thread `self` (a pthread_t, Python's thread ident): the first in the list; NULL when it has none. */
+static const tstate *thread_of_locked(uint64_t self) {
+    for (tstate *th = threads; th; th = th->next) {
+        if ((uint64_t)th->self == self)
+            return th;
+    }
+    return NULL;
+}
+
+static int thread_waiting_locked(const tstate *th) { return th && th->waiting && !th->released; }
+
 /* 1 when thread `self` (a pthread_t, Python's thread ident) is inside a wait that has not ended. */
 int hs_thread_waiting(uint64_t self) {
     pthread_mutex_lock(&mu);
-    int r = 0;
-    for (tstate *th = threads; th; th = th->next) {
-        if ((uint64_t)th->self == self) {
-            r = th->waiting && !th->released;
-            break;
-        }
-    }
+    int r = thread_waiting_locked(thread_of_locked(self));
     pthread_mutex_unlock(&mu);
     return r;
+}
+
+/* hs_generation, hs_busy, hs_sent, hs_next_deadline and hs_waits_for_io in one look, under `mu`: one state, where
+ * five calls could each see another. `waiting` gets (up to `cap` of) the threads for which hs_thread_waiting is 1;
+ * returns how many there are (out->nwaiting; more than `cap`: ask again with room for them). */
+int hs_snapshot(hs_state *out, uint64_t *waiting, int cap) {
+    pthread_mutex_lock(&mu);
+    out->generation = generation;
+    out->busy = hs__busy_locked();
+    out->sent = __atomic_load_n(&sent, __ATOMIC_ACQUIRE);
+    out->next_deadline = next_deadline_locked();
+    out->waits_for_io = waits_for_io_locked();
+    int n = 0;
+    for (tstate *th = threads; th; th = th->next) {
+        if (th->self && thread_waiting_locked(th) && thread_of_locked((uint64_t)th->self) == th) {
+            if (n < cap)
+                waiting[n] = (uint64_t)th->self;
+            n++;
+        }
+    }
+    out->nwaiting = n;
+    pthread_mutex_unlock(&mu);
+    return n;
 }
 
 uint64_t hs_sent(void) { return __atomic_load_n(&sent, __ATOMIC_ACQUIRE); }
