@@ -211,8 +211,9 @@ static int ready(struct pollfd *fds, int n) {
     return raw_poll(p, (nfds_t)n, 0) > 0;
 }
 
-/* Block (idle for the mission) until `fds` are ready in a phase or sim time reaches `deadline`. 1: timed out. */
-static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, const char *call) {
+/* Block (idle for the mission) until `fds` are ready in a phase or sim time reaches `deadline` (or, `on_go`, until
+ * the mission lets the process run at all: a child of it exited). 1: timed out. */
+static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, int on_go, const char *call) {
     if (n > MAX_FDS)
         n = MAX_FDS;
     pthread_mutex_lock(&cmu);
@@ -263,7 +264,7 @@ static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, const char
                 timed_out = 1;
                 break;
             }
-            if (ready(fds, n))
+            if (ready(fds, n) || on_go)
                 break;
             continue; /* the mission let the process run for another thread's sake: wait again */
         }
@@ -279,7 +280,7 @@ static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, const char
     return timed_out;
 }
 
-#define child_wait(fds, n, deadline) child_wait_in(fds, n, deadline, __func__)
+#define child_wait(fds, n, deadline) child_wait_in(fds, n, deadline, 0, __func__)
 
 static int64_t after(int64_t ns) { return add_ns(sim_now(), ns); }
 static int64_t ms_deadline(int ms) { return ms < 0 ? NO_DEADLINE : after((int64_t)ms * 1000000LL); }
@@ -390,7 +391,7 @@ static int raw_select(int nfds, fd_set *r, fd_set *w, fd_set *e, struct timeval 
 
 static int select_wait(void *ctx, struct pollfd *p, int n, int64_t deadline) {
     (void)ctx;
-    return child_wait_in(p, n, deadline, "select");
+    return child_wait_in(p, n, deadline, 0, "select");
 }
 
 int select(int nfds, fd_set *r, fd_set *w, fd_set *e, struct timeval *tv) {
@@ -408,7 +409,7 @@ static int would_block(int fd, const char *call) {
     struct pollfd p = {.fd = fd, .events = POLLIN};
     if (raw_poll(&p, 1, 0) != 0)
         return 0;
-    child_wait_in(&p, 1, NO_DEADLINE, call);
+    child_wait_in(&p, 1, NO_DEADLINE, 0, call);
     return 1;
 }
 
@@ -437,27 +438,27 @@ int accept(int fd, struct sockaddr *a, socklen_t *al) {
 }
 
 /* A blocking wait for a child: a wait on the child's pidfd (any child: polled at each phase). */
-pid_t wait4(pid_t pid, int *status, int options, struct rusage *ru) {
-    if (on() && !(options & WNOHANG)) {
-        int pfd = pid > 0 ? (int)syscall(SYS_pidfd_open, pid, 0) : -1;
-        for (;;) {
-            pid_t r = (pid_t)syscall(SYS_wait4, pid, status, options | WNOHANG, ru);
-            if (r != 0)
-                break;
-            if (pfd >= 0) {
-                struct pollfd p = {.fd = pfd, .events = POLLIN};
-                child_wait(&p, 1, NO_DEADLINE);
-            } else {
-                child_wait(NULL, 0, after(20000000LL)); /* any child: look again a phase later */
-            }
-        }
-        if (pfd >= 0)
-            close(pfd);
-    }
+static pid_t raw_wait4(pid_t pid, int *status, int options, struct rusage *ru) {
     return (pid_t)syscall(SYS_wait4, pid, status, options, ru);
 }
 
+static int wait4_wait(void *ctx, struct pollfd *p, int n, int64_t deadline) {
+    (void)ctx;
+    return child_wait_in(p, n, deadline, 1, "wait4"); /* any "G" may be a child's exit: wait4 looks again */
+}
+
+pid_t wait4(pid_t pid, int *status, int options, struct rusage *ru) {
+    if (on() && !(options & WNOHANG))
+        return wait4_on_sim(pid, status, options, ru, raw_wait4, wait4_wait, NULL, sim_now);
+    return raw_wait4(pid, status, options, ru);
+}
+
 pid_t waitpid(pid_t pid, int *status, int options) { return wait4(pid, status, options, NULL); }
+
+/* Shells wait with these (dash: wait3): inside libc they call wait4 directly, past this library. */
+pid_t wait3(int *status, int options, struct rusage *ru) { return wait4(-1, status, options, ru); }
+
+pid_t wait(int *status) { return wait4(-1, status, 0, NULL); }
 
 /* -- processes and threads --------------------------------------------------------------------------- */
 

@@ -15,8 +15,12 @@
 #include <sys/select.h>
 #include <sys/socket.h>
 #include <sys/time.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
 #include <sys/un.h>
+#include <sys/wait.h>
 #include <time.h>
+#include <unistd.h>
 
 #define NO_DEADLINE INT64_MAX
 #define MAX_FDS 64
@@ -79,6 +83,30 @@ static inline int select_on_sim(int nfds, fd_set *r, fd_set *w, fd_set *e, int64
             if (e) *e = e0;
             z = zero;
             return raw(nfds, r, w, e, &z);
+        }
+    }
+}
+
+/* A blocking wait for a child (wait4 without WNOHANG) as a sim-time wait: `raw` (the real wait4) is tried with
+ * WNOHANG; while no child has changed, the caller's `wait` blocks on the child's pidfd, or (any child, or no pidfd)
+ * until a phase later (`now()` + 20 ms): the child runs meanwhile, and the waiter counts idle until it has exited. */
+typedef pid_t (*raw_wait4_fn)(pid_t pid, int *status, int options, struct rusage *ru);
+
+static inline pid_t wait4_on_sim(pid_t pid, int *status, int options, struct rusage *ru, raw_wait4_fn raw,
+                                 fds_wait_fn wait, void *ctx, int64_t (*now)(void)) {
+    int pfd = pid > 0 ? (int)syscall(SYS_pidfd_open, pid, 0) : -1;
+    for (;;) {
+        pid_t r = raw(pid, status, options | WNOHANG, ru);
+        if (r != 0) { /* reaped (or an error): once, here */
+            if (pfd >= 0)
+                close(pfd);
+            return r;
+        }
+        if (pfd >= 0) {
+            struct pollfd p = {.fd = pfd, .events = POLLIN};
+            wait(ctx, &p, 1, NO_DEADLINE);
+        } else {
+            wait(ctx, NULL, 0, add_ns(now(), 20000000LL)); /* any child: look again a phase later */
         }
     }
 }

@@ -75,6 +75,7 @@ typedef struct tstate {
     int child_fd;        /* its connection (-1 until it says hello, and while it execs) */
     int pidfd;           /* readable when it has exited */
     pid_t parent;        /* the child of the mission that started it (0: the mission itself) */
+    int child_exited;    /* a child of this child exited while it ran: its next wait ends at once */
     pid_t tid;           /* the kernel's id of the thread (diagnostics: which system call it is in) */
     char call[24];       /* the call it waits in, or last waited in (diagnostics) */
 } tstate;
@@ -205,6 +206,8 @@ int hs_posix_spawnp(pid_t *pid, const char *file, const posix_spawn_file_actions
                     char *const argv[], char *const envp[]);
 pid_t hs_wait4(pid_t pid, int *status, int options, struct rusage *ru);
 pid_t hs_waitpid(pid_t pid, int *status, int options);
+pid_t hs_wait3(int *status, int options, struct rusage *ru);
+pid_t hs_wait(int *status);
 
 /* -- the API (exported) ------------------------------------------------------------------------------ */
 

@@ -87,10 +87,16 @@ static void drop_child_locked(tstate *t) {
     TRACE("child %d exited", t->index);
     hs__close_child_fds_locked(t);
     /* Its parent, if a child of the mission too, runs now (SIGCHLD is on its way to it: when the parent takes the
-     * "G", the signal has been handled and whatever its handler wrote is ready): in this phase, at any pace. */
+     * "G", the signal has been handled and whatever its handler wrote is ready): in this phase, at any pace. A
+     * parent that is running still ends its next wait at once (a shell's wait3 for any child has no descriptor
+     * that could say so: its "W" may come after the exit). */
     for (tstate *p = threads; t->parent && p; p = p->next) {
-        if (p->pid == t->parent && p->waiting && !p->released)
+        if (p->pid != t->parent)
+            continue;
+        if (p->waiting && !p->released)
             hs__release_locked(p, 0);
+        else
+            p->child_exited = 1;
     }
     if (t->child_fd >= 0)
         close(t->child_fd);
@@ -129,8 +135,11 @@ static void child_says_locked(tstate *t, int fd, const char *line) {
             snprintf(t->call, sizeof t->call, "%.*s", (int)(k < sizeof t->call ? k : sizeof t->call - 1), call + 1);
             take_child_fds_locked(t, call + 1 + k);
         }
-        if (gate_open && t->deadline <= now_ns)
+        if (t->child_exited)
+            hs__release_locked(t, 0); /* a child of it exited while it ran */
+        else if (gate_open && t->deadline <= now_ns)
             hs__release_locked(t, 1);
+        t->child_exited = 0;
         hs__poke_locked();
         break;
     case 'R':
@@ -322,28 +331,21 @@ int hs_posix_spawnp(pid_t *pid, const char *file, const posix_spawn_file_actions
     return r;
 }
 
+static int wait4_wait(void *t, struct pollfd *p, int n, int64_t deadline) {
+    return hs__sim_wait_in(t, p, n, deadline, NULL, 0, "wait4");
+}
+
 /* A blocking wait for a child (subprocess's Popen.wait, asyncio's child watcher) is a sim-time wait on the child's
  * pidfd: the child runs meanwhile, and the waiter counts idle until the child has exited. */
 pid_t hs_wait4(pid_t pid, int *status, int options, struct rusage *ru) {
-    if (on_sim() && !(options & WNOHANG)) {
-        int pfd = pid > 0 ? (int)syscall(SYS_pidfd_open, pid, 0) : -1;
-        tstate *t = hs__me();
-        for (;;) {
-            pid_t r = wait4(pid, status, options | WNOHANG, ru);
-            if (r != 0) {
-                if (pfd >= 0)
-                    close(pfd);
-                return r;
-            }
-            if (pfd >= 0) {
-                struct pollfd p = {.fd = pfd, .events = POLLIN};
-                sim_wait(t, &p, 1, NO_DEADLINE, NULL, 0);
-            } else {
-                sim_wait(t, NULL, 0, add_ns(sim_now(), 20000000LL), NULL, 0); /* any child: look a phase later */
-            }
-        }
-    }
+    if (on_sim() && !(options & WNOHANG))
+        return wait4_on_sim(pid, status, options, ru, wait4, wait4_wait, hs__me(), sim_now);
     return wait4(pid, status, options, ru);
 }
 
 pid_t hs_waitpid(pid_t pid, int *status, int options) { return hs_wait4(pid, status, options, NULL); }
+
+/* os.wait3 and os.wait: inside libc they call wait4 directly, past the GOT. */
+pid_t hs_wait3(int *status, int options, struct rusage *ru) { return hs_wait4(-1, status, options, ru); }
+
+pid_t hs_wait(int *status) { return hs_wait4(-1, status, 0, NULL); }

@@ -78,6 +78,8 @@ static const hook interp_hooks[] = {
     {"posix_spawnp", (void *)hs_posix_spawnp},
     {"wait4", (void *)hs_wait4},
     {"waitpid", (void *)hs_waitpid},
+    {"wait3", (void *)hs_wait3},
+    {"wait", (void *)hs_wait},
     {"sem_clockwait", (void *)hs_sem_clockwait},
     {"sem_timedwait", (void *)hs_sem_timedwait},
     {"sem_post", (void *)hs_sem_post},
@@ -260,8 +262,8 @@ int hs_patch(const char *target) {
  * functions (loaded from `path`) replace every hook of this process, through the same GOTs. 1 when joined. */
 static const char *const child_names[] = {
     "clock_gettime", "gettimeofday", "time", "nanosleep", "clock_nanosleep", "usleep", "sleep", "poll", "ppoll",
-    "epoll_wait", "epoll_pwait", "select", "read", "recv", "recvfrom", "accept", "wait4", "waitpid", "fork", "vfork",
-    "posix_spawn", "posix_spawnp", "pthread_create"};
+    "epoll_wait", "epoll_pwait", "select", "read", "recv", "recvfrom", "accept", "wait4", "waitpid", "wait3", "wait",
+    "fork", "vfork", "posix_spawn", "posix_spawnp", "pthread_create"};
 static hook child_hooks[sizeof child_names / sizeof child_names[0]];
 static size_t n_child_hooks;
 static uintptr_t child_base;
