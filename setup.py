@@ -1,5 +1,5 @@
 """Build hook beside pyproject.toml: the per-vehicle core compiled to C extensions by mypyc, the sim-time shims
-for C libraries and child processes (``harness/simclock/simtime.c``, ``simchild.c``) compiled into the package,
+for C libraries and child processes (``harness/simclock/simtime*.c``, ``simchild.c``) compiled into the package,
 and the example missions (``missions/``) packaged as ``harness.examples``.
 
 The modules are ``harness.core.native.MODULES`` (read here by path: the package is not installed yet). They
@@ -10,8 +10,8 @@ import (a source edited since the build runs as Python, with a warning). With no
 ``HARNESS_PURE=1`` at build time, or a failed compile, the install still succeeds, pure Python, and says so
 once.
 
-The shims are plain shared objects (loaded with ctypes or LD_PRELOAD, not imported), named by their source's
-hash (``harness.simclock.shim``); they are built whatever ``HARNESS_PURE`` says (they put MAVSDK's threads, a
+The shims are plain shared objects (loaded with ctypes or LD_PRELOAD, not imported), named by the hash of their
+sources and headers (``harness.simclock.shim``); they are built whatever ``HARNESS_PURE`` says (they put MAVSDK's threads, a
 mission's C-level waits and its children on the sim clock; they are not the per-vehicle core). Without a compiler
 the package still installs: the shims are then compiled at run time into the user's cache where a compiler
 exists, else those keep the wall clock.
@@ -96,7 +96,7 @@ def _drop_leftovers() -> None:
     keep = {*NATIVE.MODULES, f"{NATIVE.GROUP}__mypyc"}
     suffixes = tuple(importlib.machinery.EXTENSION_SUFFIXES)
     for path in (ROOT / "harness").rglob("*"):
-        if path.name.startswith(tuple(f"{source.stem}-" for source in SHIM.SOURCES)):
+        if path.name.startswith(tuple(f"{shim.stem}-" for shim in SHIM.SHIMS)):
             continue  # a sim-time shim (not a Python module): _build_shim keeps the current one only
         if path.name.endswith(suffixes):
             name = path.name[: -len(next(s for s in suffixes if path.name.endswith(s)))]
@@ -142,20 +142,20 @@ class BuildNative(build_ext):
         return NATIVE.MANIFEST if self._inplace() else Path(self.build_lib) / "harness" / NATIVE.MANIFEST.name
 
     def _build_shim(self) -> None:
-        """The sim-time shims (``simtime.c``, ``simchild.c``) compiled beside their sources in the package
+        """The sim-time shims (``simtime*.c``, ``simchild.c``) compiled beside their sources in the package
         (``<stem>-<hash>.so``); a failure is one line."""
-        folder = SHIM.SOURCE.parent if self._inplace() else Path(self.build_lib) / "harness" / "simclock"
-        for source in SHIM.SOURCES:
-            target = folder / SHIM.shim_name(source)
-            for old in folder.glob(f"{source.stem}-*.so"):
+        folder = SHIM.FOLDER if self._inplace() else Path(self.build_lib) / "harness" / "simclock"
+        for shim in SHIM.SHIMS:
+            target = folder / SHIM.shim_name(shim)
+            for old in folder.glob(f"{shim.stem}-*.so"):
                 if old != target:
-                    old.unlink()  # a build of an earlier source: never loaded, removed
-            why = None if target.is_file() else SHIM.compile_shim(target, source)
+                    old.unlink()  # a build of earlier sources: never loaded, removed
+            why = None if target.is_file() else SHIM.compile_shim(target, shim)
             if why is None:
                 self._shims.append(target)
                 _say(f"built the sim-time shim {target.name}")
             else:
-                _say(f"{why}: {source.name} is not built into the package (built at run time if a compiler is there)")
+                _say(f"{why}: {shim.stem} is not built into the package (built at run time if a compiler is there)")
 
     def get_outputs(self) -> list[str]:
         outputs = [*super().get_outputs(), str(self._manifest())] if self.extensions else super().get_outputs()

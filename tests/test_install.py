@@ -25,6 +25,7 @@ import pytest
 import yaml
 
 from harness.pytest_plugin import RunRecord, run_harness
+from harness.simclock.shim import SHIMS
 
 pytestmark = [pytest.mark.install, pytest.mark.sim]
 ROOT = Path(__file__).resolve().parents[1]
@@ -127,9 +128,9 @@ def _same_flight(run: RunRecord, reference: RunRecord) -> None:
 
 def test_the_wheel_carries_what_a_run_needs(dist: tuple[Path, Path]) -> None:
     names = zipfile.ZipFile(dist[0]).namelist()
-    for shim in ("simtime", "simchild"):
-        assert f"harness/simclock/{shim}.c" in names
-        assert any(re.fullmatch(rf"harness/simclock/{shim}-[0-9a-f]{{16}}\.so", n) for n in names), f"{shim} built"
+    for built in SHIMS:
+        assert {f"harness/simclock/{path.name}" for path in built.files()} <= set(names), f"{built.stem}'s sources"
+        assert any(re.fullmatch(rf"harness/simclock/{built.stem}-[0-9a-f]{{16}}\.so", n) for n in names), built.stem
     assert {"harness/py.typed", "harness/examples/swarm_demo.py", "harness/examples/takeoff_and_land.py"} <= set(names)
     assert "harness/autopilot/params_data/copter_params.tsv" in names
     assert any(n.startswith("harness/fdm/models/") and n.endswith(".xml") for n in names), "the JSBSim model"

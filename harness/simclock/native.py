@@ -1,4 +1,5 @@
-"""A C library's threads on the sim clock: ``simtime.c``, built once per machine, GOT-patched into the library.
+"""A C library's threads on the sim clock: ``simtime.c`` (and its parts), built once per machine, GOT-patched into the
+library.
 
 MAVSDK's native core (``mavsdk/lib/libcmavsdk.so``, which both MAVSDK APIs run on in a mission) is linked
 dynamically against libc, with libstdc++ inside it: every clock read, sleep, condition variable, futex, poll,
@@ -6,9 +7,9 @@ receive and thread it makes goes through its own GOT. :func:`attach` rewrites th
 ``simtime.c``, so that the library's timers, timeouts and waits follow sim time and its threads take part in
 the phase-0 idle decision of :class:`~harness.simclock.runtime.SimRuntime` (see ``docs/simclock.md``).
 
-The shared object is compiled when the package is built (``setup.py``: it ships in the wheel beside
-``simtime.c``, named by the source's hash, ``simtime-<hash>.so``). Where a build has none (no C compiler when it
-was built, or ``simtime.c`` edited since), it is compiled with the machine's C compiler the first time it is
+The shared object is compiled when the package is built (``setup.py``: it ships in the wheel beside its sources,
+named by their hash, ``simtime-<hash>.so``). Where a build has none (no C compiler when it was built, or a source
+edited since), it is compiled with the machine's C compiler the first time it is
 needed (about 0.3 s) into the user's cache directory, keyed the same way; a launcher builds it before it starts
 missions, so a run of a hundred missions compiles once. Without either the library keeps the wall clock: one
 warning says so, and everything else works as before.
@@ -22,38 +23,51 @@ import ctypes
 import logging
 import os
 import sys
-from collections.abc import Callable, Container
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from harness.simclock.shim import CHILD_SOURCE, build
+from harness.simclock.shim import CHILD, build
 
 log = logging.getLogger(__name__)
 
 NO_DEADLINE = (1 << 63) - 1
 
 
-def build_all() -> None:
-    """Build the mission's side and the child processes' side (once per machine; no-op when cached)."""
-    if sys.platform.startswith("linux") and build() is not None:
-        build(CHILD_SOURCE)
+class _State(ctypes.Structure):
+    """``hs_state`` (simtime.h)."""
+
+    _fields_ = (
+        ("generation", ctypes.c_uint64),
+        ("busy", ctypes.c_int64),
+        ("sent", ctypes.c_uint64),
+        ("next_deadline", ctypes.c_int64),
+        ("waits_for_io", ctypes.c_int64),
+        ("nwaiting", ctypes.c_int64),
+    )
 
 
 @dataclass(frozen=True)
 class NativeState:
-    """What the shim's threads are doing, read at once (:meth:`NativeClock.snapshot`)."""
+    """The shim's state in one look (``hs_snapshot``, under its lock): what :meth:`NativeClock.generation`,
+    :c:func:`hs_busy`, :meth:`~NativeClock.sent`, :meth:`~NativeClock.next_deadline_ns` and
+    :meth:`~NativeClock.waits_for_io` answer, and the threads ``hs_thread_waiting`` answers 1 for."""
 
+    generation: int
     busy: int
-    waiting: Container[int]
-    """Idents of the threads (Python's ``threading`` idents) that wait inside the shim on the sim clock."""
+    """Threads the shim tracks (the library's, C extensions', child processes) that are not waiting."""
+    sent: int
+    next_deadline_ns: int
+    """The earliest sim deadline of a wait or an armed timer (``NO_DEADLINE``: none)."""
+    waits_for_io: bool
+    waiting: frozenset[int]
+    """The threads (``threading`` idents, pthread_t) inside a wait of the shim that has not ended."""
 
 
-@dataclass(frozen=True)
-class _Waiting:
-    lib: ctypes.CDLL
-
-    def __contains__(self, ident: object) -> bool:
-        return isinstance(ident, int) and bool(self.lib.hs_thread_waiting(ident))
+def build_all() -> None:
+    """Build the mission's side and the child processes' side (once per machine; no-op when cached)."""
+    if sys.platform.startswith("linux") and build() is not None:
+        build(CHILD)
 
 
 @dataclass(eq=False)
@@ -79,9 +93,6 @@ class NativeClock:
         """Shut the gate without ending the phase (a settle is in flight); :meth:`reopen` opens it again."""
         self.lib.hs_pause()
 
-    def snapshot(self) -> NativeState:
-        return NativeState(int(self.lib.hs_busy()), _Waiting(self.lib))
-
     def release_ready(self) -> int:
         """Let every library thread whose descriptors are ready run; how many."""
         return int(self.lib.hs_release_ready())
@@ -93,9 +104,6 @@ class NativeClock:
     def sent(self) -> int:
         return int(self.lib.hs_sent())
 
-    def thread_waiting(self, ident: int) -> bool:
-        return bool(self.lib.hs_thread_waiting(ident))
-
     def next_deadline_ns(self) -> int:
         return int(self.lib.hs_next_deadline())
 
@@ -104,6 +112,25 @@ class NativeClock:
 
     def generation(self) -> int:
         return int(self.lib.hs_generation())
+
+    def snapshot(self) -> NativeState:
+        """The shim's state in one look, taken under its lock (five calls could each see another)."""
+        state = _State()
+        room = 64
+        while True:
+            idents = (ctypes.c_uint64 * room)()
+            n = int(self.lib.hs_snapshot(ctypes.byref(state), idents, room))
+            if n <= room:
+                break
+            room = 2 * n  # more threads wait than there was room for: look again
+        return NativeState(
+            generation=state.generation,
+            busy=state.busy,
+            sent=state.sent,
+            next_deadline_ns=state.next_deadline,
+            waits_for_io=bool(state.waits_for_io),
+            waiting=frozenset(idents[:n]),
+        )
 
     def wait_change(self, generation: int, timeout_ns: int) -> None:
         self.lib.hs_wait_change(generation, timeout_ns)
@@ -143,6 +170,7 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.hs_thread_waiting.argtypes = [u64]
     lib.hs_sent.restype = u64
     lib.hs_generation.restype = u64
+    lib.hs_snapshot.argtypes = [ctypes.POINTER(_State), ctypes.POINTER(u64), ctypes.c_int]
     lib.hs_try_close.argtypes = [u64]
     lib.hs_wait_change.argtypes = [u64, i64]
     lib.hs_wait_library_idle.argtypes = [i64]
@@ -184,7 +212,7 @@ def attach_process(epoch_ns: int, now_ns: int, forget_python: Callable[[], None]
     clock = _shim(epoch_ns, now_ns)
     if clock is None:
         return None
-    child_lib = build(CHILD_SOURCE)  # before the process's own waits for a child (the compiler) are sim-time waits
+    child_lib = build(CHILD)  # before the process's own waits for a child (the compiler) are sim-time waits
     clock.patched += int(clock.lib.hs_patch_process())
     log.debug("the process: %d calls on the sim clock", clock.patched)
     if child_lib is not None:

@@ -319,18 +319,18 @@ class SimRuntime(Gate):
         then says so (``mavlink_wakes``) and the channel wakes it at the phases after which its vehicle sent it
         MAVLink (most phases bring none: telemetry comes at 10 Hz or less, phases at 50 Hz); a swarm mission
         (several vehicles, no ``vehicle``) takes part in every phase."""
-        native = self.native
+        snap = self.native.snapshot() if self.native is not None else None
         waiting = list(self.threads.waiting())
         if any(w.gated or w.every_phase for w in waiting):
             return EVERY_PHASE, True, False
-        mavlink_wakes = native is not None and native.waits_for_io()
+        mavlink_wakes = snap is not None and snap.waits_for_io
         if mavlink_wakes and self.vehicle < 0:
             return EVERY_PHASE, True, False
         deadlines = [w.deadline_ns for w in waiting if w.deadline_ns is not None]
         if self.itimer is not None:
             deadlines.append(self.itimer[0])
-        if native is not None and (d := native.next_deadline_ns()) != NATIVE_NO_DEADLINE:
-            deadlines.append(d)
+        if snap is not None and snap.next_deadline_ns != NATIVE_NO_DEADLINE:
+            deadlines.append(snap.next_deadline_ns)
         inbox = bool(self.mail.callbacks) or any(w.inbox for w in waiting)
         return min(deadlines, default=NO_DEADLINE), inbox, mavlink_wakes
 

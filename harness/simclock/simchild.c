@@ -37,8 +37,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#define NO_DEADLINE INT64_MAX
-#define MAX_FDS 64
+#include "simcommon.h"
 
 static int client = -1;   /* the connection to the mission (-1: not a child of a mission: everything real) */
 static pid_t client_pid;  /* the process that opened it (a fork needs its own) */
@@ -107,7 +106,7 @@ static void hear_locked(int block) {
             return;
         }
         buf[n] = 0;
-        for (char *line = buf; line && *line; line = strchr(line, '\n') ? strchr(line, '\n') + 1 : NULL) {
+        for (char *line = buf; line && *line; line = next_line(line)) {
             if (line[0] == 'T' || line[0] == 'G') {
                 long long v = atoll(line + 2);
                 if (v > now_ns)
@@ -125,15 +124,14 @@ static void hear_locked(int block) {
 }
 
 static int connect_parent(const char *name) {
+    struct sockaddr_un a;
+    socklen_t alen = abstract_address(&a, name);
+    if (!alen)
+        return -1;
     int fd = (int)syscall(SYS_socket, AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
     if (fd < 0)
         return -1;
-    struct sockaddr_un a = {.sun_family = AF_UNIX};
-    size_t len = strlen(name);
-    if (len + 1 > sizeof a.sun_path)
-        return -1;
-    memcpy(a.sun_path + 1, name, len); /* abstract namespace */
-    if (syscall(SYS_connect, fd, &a, (socklen_t)(offsetof(struct sockaddr_un, sun_path) + 1 + len)) != 0) {
+    if (syscall(SYS_connect, fd, &a, alen) != 0) {
         close(fd);
         return -1;
     }
@@ -213,8 +211,9 @@ static int ready(struct pollfd *fds, int n) {
     return raw_poll(p, (nfds_t)n, 0) > 0;
 }
 
-/* Block (idle for the mission) until `fds` are ready in a phase or sim time reaches `deadline`. 1: timed out. */
-static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, const char *call) {
+/* Block (idle for the mission) until `fds` are ready in a phase or sim time reaches `deadline` (or, `on_go`, until
+ * the mission lets the process run at all: a child of it exited). 1: timed out. */
+static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, int on_go, const char *call) {
     if (n > MAX_FDS)
         n = MAX_FDS;
     pthread_mutex_lock(&cmu);
@@ -265,7 +264,7 @@ static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, const char
                 timed_out = 1;
                 break;
             }
-            if (ready(fds, n))
+            if (ready(fds, n) || on_go)
                 break;
             continue; /* the mission let the process run for another thread's sake: wait again */
         }
@@ -281,25 +280,17 @@ static int child_wait_in(struct pollfd *fds, int n, int64_t deadline, const char
     return timed_out;
 }
 
-#define child_wait(fds, n, deadline) child_wait_in(fds, n, deadline, __func__)
+#define child_wait(fds, n, deadline) child_wait_in(fds, n, deadline, 0, __func__)
 
-static int64_t ts_ns(const struct timespec *ts) { return (int64_t)ts->tv_sec * 1000000000LL + ts->tv_nsec; }
-static int64_t after(int64_t ns) { return ns > NO_DEADLINE - sim_now() ? NO_DEADLINE : sim_now() + ns; }
+static int64_t after(int64_t ns) { return add_ns(sim_now(), ns); }
 static int64_t ms_deadline(int ms) { return ms < 0 ? NO_DEADLINE : after((int64_t)ms * 1000000LL); }
-
-static int is_sim_clock(clockid_t c) {
-    return c == CLOCK_MONOTONIC || c == CLOCK_MONOTONIC_RAW || c == CLOCK_MONOTONIC_COARSE || c == CLOCK_BOOTTIME;
-}
-static int is_wall_clock(clockid_t c) { return c == CLOCK_REALTIME || c == CLOCK_REALTIME_COARSE || c == CLOCK_TAI; }
 
 /* -- the clock --------------------------------------------------------------------------------------- */
 
 int clock_gettime(clockid_t c, struct timespec *ts) {
     if (!on() || !(is_sim_clock(c) || is_wall_clock(c)))
         return raw_clock_gettime(c, ts);
-    int64_t v = is_sim_clock(c) ? sim_now() : epoch_ns + sim_now();
-    ts->tv_sec = v / 1000000000LL;
-    ts->tv_nsec = v % 1000000000LL;
+    ns_ts(is_sim_clock(c) ? sim_now() : epoch_ns + sim_now(), ts);
     return 0;
 }
 
@@ -394,42 +385,20 @@ int epoll_pwait(int ep, struct epoll_event *ev, int max, int ms, const sigset_t 
     return epoll_wait(ep, ev, max, ms);
 }
 
+static int raw_select(int nfds, fd_set *r, fd_set *w, fd_set *e, struct timeval *tv) {
+    return (int)syscall(SYS_select, nfds, r, w, e, tv);
+}
+
+static int select_wait(void *ctx, struct pollfd *p, int n, int64_t deadline) {
+    (void)ctx;
+    return child_wait_in(p, n, deadline, 0, "select");
+}
+
 int select(int nfds, fd_set *r, fd_set *w, fd_set *e, struct timeval *tv) {
-    struct timeval zero = {0, 0};
     if (!on() || (tv && tv->tv_sec == 0 && tv->tv_usec == 0))
-        return (int)syscall(SYS_select, nfds, r, w, e, tv);
+        return raw_select(nfds, r, w, e, tv);
     int64_t deadline = tv ? after((int64_t)tv->tv_sec * 1000000000LL + (int64_t)tv->tv_usec * 1000) : NO_DEADLINE;
-    fd_set r0, w0, e0;
-    if (r) r0 = *r;
-    if (w) w0 = *w;
-    if (e) e0 = *e;
-    struct pollfd p[MAX_FDS];
-    int n = 0;
-    for (int fd = 0; fd < nfds && n < MAX_FDS; fd++) {
-        short evs = (short)((r && FD_ISSET(fd, &r0) ? POLLIN : 0) | (w && FD_ISSET(fd, &w0) ? POLLOUT : 0) |
-                            (e && FD_ISSET(fd, &e0) ? POLLPRI : 0));
-        if (evs) {
-            p[n].fd = fd;
-            p[n].events = evs;
-            p[n++].revents = 0;
-        }
-    }
-    for (;;) {
-        if (r) *r = r0;
-        if (w) *w = w0;
-        if (e) *e = e0;
-        struct timeval z = zero;
-        int res = (int)syscall(SYS_select, nfds, r, w, e, &z);
-        if (res != 0)
-            return res;
-        if (child_wait(p, n, deadline)) {
-            if (r) *r = r0;
-            if (w) *w = w0;
-            if (e) *e = e0;
-            z = zero;
-            return (int)syscall(SYS_select, nfds, r, w, e, &z);
-        }
-    }
+    return select_on_sim(nfds, r, w, e, deadline, raw_select, select_wait, NULL);
 }
 
 /* A blocking read, receive or accept that would block is a wait on its descriptor (a pipe the process reads until
@@ -440,7 +409,7 @@ static int would_block(int fd, const char *call) {
     struct pollfd p = {.fd = fd, .events = POLLIN};
     if (raw_poll(&p, 1, 0) != 0)
         return 0;
-    child_wait_in(&p, 1, NO_DEADLINE, call);
+    child_wait_in(&p, 1, NO_DEADLINE, 0, call);
     return 1;
 }
 
@@ -469,27 +438,27 @@ int accept(int fd, struct sockaddr *a, socklen_t *al) {
 }
 
 /* A blocking wait for a child: a wait on the child's pidfd (any child: polled at each phase). */
-pid_t wait4(pid_t pid, int *status, int options, struct rusage *ru) {
-    if (on() && !(options & WNOHANG)) {
-        int pfd = pid > 0 ? (int)syscall(SYS_pidfd_open, pid, 0) : -1;
-        for (;;) {
-            pid_t r = (pid_t)syscall(SYS_wait4, pid, status, options | WNOHANG, ru);
-            if (r != 0)
-                break;
-            if (pfd >= 0) {
-                struct pollfd p = {.fd = pfd, .events = POLLIN};
-                child_wait(&p, 1, NO_DEADLINE);
-            } else {
-                child_wait(NULL, 0, after(20000000LL)); /* any child: look again a phase later */
-            }
-        }
-        if (pfd >= 0)
-            close(pfd);
-    }
+static pid_t raw_wait4(pid_t pid, int *status, int options, struct rusage *ru) {
     return (pid_t)syscall(SYS_wait4, pid, status, options, ru);
 }
 
+static int wait4_wait(void *ctx, struct pollfd *p, int n, int64_t deadline) {
+    (void)ctx;
+    return child_wait_in(p, n, deadline, 1, "wait4"); /* any "G" may be a child's exit: wait4 looks again */
+}
+
+pid_t wait4(pid_t pid, int *status, int options, struct rusage *ru) {
+    if (on() && !(options & WNOHANG))
+        return wait4_on_sim(pid, status, options, ru, raw_wait4, wait4_wait, NULL, sim_now);
+    return raw_wait4(pid, status, options, ru);
+}
+
 pid_t waitpid(pid_t pid, int *status, int options) { return wait4(pid, status, options, NULL); }
+
+/* Shells wait with these (dash: wait3): inside libc they call wait4 directly, past this library. */
+pid_t wait3(int *status, int options, struct rusage *ru) { return wait4(-1, status, options, ru); }
+
+pid_t wait(int *status) { return wait4(-1, status, 0, NULL); }
 
 /* -- processes and threads --------------------------------------------------------------------------- */
 

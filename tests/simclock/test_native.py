@@ -9,6 +9,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -86,6 +87,11 @@ static int64_t polled_at;
 static void *poller(void *p) { (void)p; poll(0, 0, 250); polled_at = mono(); return 0; }
 void start_poller(void) { polled_at = -1; pthread_t t; pthread_create(&t, 0, poller, 0); pthread_detach(t); }
 int64_t poll_done_at(void) { return polled_at; }
+
+/* a futex wait of the caller's own thread (a Python thread calling into the library), ended by release_held */
+static uint32_t held;
+long wait_held(void) { return syscall(SYS_futex, &held, FUTEX_WAIT, 0, 0, 0, 0); }
+void release_held(void) { __atomic_store_n(&held, 1, __ATOMIC_SEQ_CST); syscall(SYS_futex, &held, FUTEX_WAKE, 1, 0, 0, 0); }
 """
 
 
@@ -101,6 +107,7 @@ def lib(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ctypes.CDLL,
     for name in ("lib_now", "lib_wall", "stamp", "cond_woke_at", "receive_at", "poll_done_at"):
         getattr(test_lib, name).restype = ctypes.c_int64
     test_lib.futex_result.restype = ctypes.c_long
+    test_lib.wait_held.restype = ctypes.c_long
     clock = native.attach("libsimtest", epoch_ns=1_700_000_000 * S, now_ns=0)
     assert clock is not None and clock.patched >= 8
     yield test_lib, clock
@@ -254,6 +261,57 @@ def test_poll_with_a_timeout_is_a_timed_wait(lib: tuple[ctypes.CDLL, native.Nati
     assert clock.next_deadline_ns() == t0 + 250 * MS
     drive.until(t0 + 260 * MS)
     assert test_lib.poll_done_at() - t0 == 260 * MS  # 250 ms on a 20 ms grid
+
+
+def test_a_thread_waiting_in_the_shim_is_in_one_snapshot_of_its_state(
+    lib: tuple[ctypes.CDLL, native.NativeClock], drive: Driver
+) -> None:
+    test_lib, clock = lib
+    drive.phase()
+    waiter = threading.Thread(target=test_lib.wait_held, name="blocked in the library")
+    waiter.start()
+    assert waiter.ident is not None
+    deadline = time.monotonic() + 10
+    while waiter.ident not in clock.snapshot().waiting:
+        assert time.monotonic() < deadline, f"{waiter.ident} never waited: {clock.snapshot()}"
+        time.sleep(0.001)
+    state = clock.snapshot()  # between phases: nothing changes until the next one
+    assert (state.generation, state.busy, state.sent, state.next_deadline_ns, state.waits_for_io) == (
+        clock.generation(),
+        clock.lib.hs_busy(),
+        clock.sent(),
+        clock.next_deadline_ns(),
+        clock.waits_for_io(),
+    )
+    assert all(clock.lib.hs_thread_waiting(ident) for ident in state.waiting)
+    assert threading.get_ident() not in state.waiting and clock.lib.hs_thread_waiting(waiter.ident)
+
+    test_lib.release_held()  # between phases: it runs in the next one
+    assert waiter.ident in clock.snapshot().waiting
+    drive.phase()
+    waiter.join(10)
+    assert not waiter.is_alive()
+    assert waiter.ident not in clock.snapshot().waiting
+
+
+def test_a_shims_name_hashes_every_file_it_is_built_from(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    for path in shim.FOLDER.iterdir():
+        if path.suffix in (".c", ".h"):
+            shutil.copy(path, tmp_path / path.name)
+    monkeypatch.setattr(shim, "FOLDER", tmp_path)
+    names = {s.stem: shim.shim_name(s) for s in shim.SHIMS}
+    assert {p.name for p in shim.MISSION.files()} >= {"simtime.c", "simtime.h", "simcommon.h", "simtime_patch.c"}
+    assert {p.name for p in shim.CHILD.files()} == {"simchild.c", "simcommon.h"}
+
+    with (tmp_path / "simcommon.h").open("a") as f:
+        f.write("/* shared by both */\n")
+    edited = {s.stem: shim.shim_name(s) for s in shim.SHIMS}
+    assert all(edited[stem] != names[stem] for stem in names), "a shared header renames both shims"
+
+    with (tmp_path / "simtime_io.c").open("a") as f:
+        f.write("/* the mission's only */\n")
+    assert shim.shim_name(shim.MISSION) != edited["simtime"]
+    assert shim.shim_name(shim.CHILD) == edited["simchild"]
 
 
 def test_without_a_compiler_the_library_keeps_the_wall_clock(

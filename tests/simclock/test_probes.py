@@ -41,6 +41,7 @@ KINDS = [
     "zmq_poll",
     "setitimer",
     "subprocess",
+    "nested_subprocess",
     "asyncio_subprocess",
     "process_fork",
     "process_forkserver",

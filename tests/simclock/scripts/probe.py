@@ -32,6 +32,14 @@ def _subprocess() -> bool:
     return subprocess.run([sys.executable, "-c", f"import time; time.sleep({SECONDS})"], check=False).returncode == 0
 
 
+def _nested_subprocess() -> bool:
+    """A child that starts its own child and waits for it: the grandchild's exit status reaches the child."""
+    import subprocess
+
+    inner = f"import subprocess, sys; sys.exit(subprocess.run(['sh', '-c', 'sleep {int(SECONDS)}; exit 3']).returncode)"
+    return subprocess.run([sys.executable, "-c", inner], check=False).returncode == 3
+
+
 def _asyncio_subprocess() -> bool:
     import asyncio
 
@@ -102,6 +110,7 @@ PROBES = {
     "process_forkserver": lambda: _process("forkserver"),
     "process_spawn": lambda: _process("spawn"),
     "subprocess": _subprocess,
+    "nested_subprocess": _nested_subprocess,
     "asyncio_subprocess": _asyncio_subprocess,
     "lock": _lock,
     "simple_queue": _simple_queue,
