@@ -51,7 +51,10 @@ def main() -> int:
     ap.add_argument("--firmware", default=None, help="px4 (default) or ardupilot")
     ap.add_argument("--swarm", action="store_true", help="the script commands every vehicle (--swarm-mission)")
     ap.add_argument("args", nargs="*", help="the script's own arguments (after --)")
-    a = ap.parse_args()
+    argv = sys.argv[1:]
+    cut = argv.index("--") if "--" in argv else len(argv)
+    a = ap.parse_args(argv[:cut])  # argparse alone drops what follows "--" once the positionals are taken
+    a.args = [*a.args, *argv[cut + 1 :]]
     extra = ["--firmware", a.firmware] if a.firmware else []
     if a.swarm:
         extra += ["--swarm-mission", str(a.script)]
