@@ -147,6 +147,7 @@ class SimSocket(_original_socket):
     def close(self) -> None:
         rt = INSTALLED.sockets
         if self._mavlink and rt is not None:
+            OUTBOX.flush()  # what was sent before ``close`` is delivered, as the kernel would (in order, all of it)
             rt.mavlink_fds.discard(self.fileno())
         super().close()
 
