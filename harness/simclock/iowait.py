@@ -67,6 +67,7 @@ def wait(
             os.write(w, b"\0")
 
     rl, wl = list(rfds), list(wfds)
+    vehicle = [fd for fd in rl if fd in rt.mavlink_fds]
     waiter = rt.new_waiter(
         Kind.IO,
         deadline_ns=deadline_ns,
@@ -74,8 +75,16 @@ def wait(
         inbox=inbox,
         rfds=tuple(rl),
         wfds=tuple(wl),
-        every_phase=any(fd in rt.mavlink_fds for fd in rl),
+        every_phase=bool(vehicle),
     )
+    # Not the vehicle's sockets: the runtime lets their data in itself, at a round of the phase (its start, after a
+    # settle, once the script is idle), never at the wall-clock moment it arrives while other script threads run.
+    # The vehicle answers a command at once, in the middle of the phase: a reader woken by that answer ran beside
+    # the thread that sent the command, and which of the two got further first was the machine's pace (DroneKit's
+    # reader took the vehicle's hello heartbeat before or after the main thread had added its capabilities
+    # listener: one ping-pong chain in some runs, two in others). Between phases nothing is lost: a thread waiting
+    # for its vehicle takes part in every phase (``every_phase``), whose start looks into its sockets.
+    rl = [fd for fd in rl if fd not in vehicle]
     rl.append(r)
     while True:
         try:

@@ -18,6 +18,7 @@ MAVLink addresses are mapped to the mission's own vehicle (:mod:`harness.core.en
 
 from __future__ import annotations
 
+import _thread
 import errno
 import os
 import socket as _socket
@@ -125,9 +126,28 @@ class SimSocket(_original_socket):
             rt.mavlink_sent += 1
             rt.clock_read()  # a thread that only ever sends (no wait, no answer read) sees time pass
 
+    def _held(self, data: Any, flags: int, address: Any) -> bool:
+        """MAVLink a script thread sends its vehicle in phase 0 waits in :data:`OUTBOX` for the phase's next settle,
+        which sends it (in order) while the script is idle: the vehicle's answers reach the script only then, never
+        while its threads run. A reader that polls its socket without waiting saw an answer or not yet, as the
+        machine's pace had it (DroneKit's reader sent its 1 Hz heartbeat after the first or the second ACK of a
+        phase, and the vehicle's budget of the loop then answered one command more or less)."""
+        rt = INSTALLED.sockets
+        if not (self._mavlink and rt is not None and rt.settle_mavlink is not None and rt.on_sim_time()):
+            return False
+        error, self._send_error = self._send_error, None
+        if error is not None:
+            raise error  # what the settle's send met, told at the next send as the kernel would have
+        OUTBOX.add(self, bytes(memoryview(data).cast("B")), flags, address)
+        self._sent()
+        return True
+
+    _send_error: OSError | None = None
+
     def close(self) -> None:
         rt = INSTALLED.sockets
         if self._mavlink and rt is not None:
+            OUTBOX.flush()  # what was sent before ``close`` is delivered, as the kernel would (in order, all of it)
             rt.mavlink_fds.discard(self.fileno())
         super().close()
 
@@ -221,6 +241,8 @@ class SimSocket(_original_socket):
         return self._blocking(lambda: _original_socket.accept(self))
 
     def send(self, data: Any, flags: int = 0) -> int:
+        if self._held(data, flags, None):
+            return len(memoryview(data).cast("B"))
         n = self._blocking(lambda: _original_socket.send(self, data, flags), write=True)
         self._sent()
         return n
@@ -234,10 +256,55 @@ class SimSocket(_original_socket):
     def sendto(self, data: Any, *args: Any) -> int:
         *flags, address = args
         address = self._map_udp(address)
+        if self._held(data, flags[0] if flags else 0, address):
+            return len(memoryview(data).cast("B"))
         raw_sendto: Any = _original_socket.sendto
         n = self._blocking(lambda: int(raw_sendto(self, data, *flags, address)), write=True)
         self._sent()
         return n
+
+
+class _Outbox:
+    """The MAVLink script threads sent their vehicles since the last settle (``SimSocket._held``), in order."""
+
+    SEND_PATIENCE_S = 5.0
+    """How long (wall clock) a settle waits for room in a TCP socket's buffer before it gives up on that socket."""
+
+    def __init__(self) -> None:
+        self._lock = _thread.allocate_lock()
+        self._items: list[tuple[SimSocket, bytes, int, Any]] = []
+
+    def add(self, sock: SimSocket, data: bytes, flags: int, address: Any) -> None:
+        with self._lock:
+            self._items.append((sock, data, flags, address))
+
+    def flush(self) -> None:
+        """Send everything held (the settle, before its token): what fails is told at the socket's next send."""
+        with self._lock:
+            items, self._items = self._items, []
+        for sock, data, flags, address in items:
+            if sock._send_error is not None or sock.fileno() < 0:
+                continue
+            try:
+                if address is None:
+                    self._send_all(sock, data, flags)
+                else:
+                    _original_socket.sendto(sock, data, flags, address)
+            except OSError as e:
+                sock._send_error = e
+
+    def _send_all(self, sock: SimSocket, data: bytes, flags: int) -> None:
+        view = memoryview(data)
+        deadline = WALL.now_ns() + int(self.SEND_PATIENCE_S * NS_PER_S)
+        while view:
+            try:
+                view = view[_original_socket.send(sock, view, flags) :]
+            except BlockingIOError:
+                if not iowait.real_select([], [sock], [], max(0, deadline - WALL.now_ns()) / NS_PER_S)[1]:
+                    raise TimeoutError("the vehicle took no data for 5 s") from None
+
+
+OUTBOX = _Outbox()
 
 
 class _Settler:
@@ -260,6 +327,7 @@ class _Settler:
         self._answered = True
 
     def __call__(self) -> bool:
+        OUTBOX.flush()
         self._seq += 1
         token = SETTLE_PREFIX + str(self._seq).encode()
         for dst in self._dsts:
