@@ -91,16 +91,16 @@ class Gate:
             return
         self._reads.pop(ident, None)
         if self.on_sim_time():
-            self.sleep_ns(1)
+            self.sleep_ns(1, Kind.CUT_OFF)
 
-    def sleep_ns(self, ns: int) -> None:
+    def sleep_ns(self, ns: int, kind: Kind = Kind.SLEEP) -> None:
         """Block the calling thread for ``ns`` of sim time (at least until a later phase 0)."""
         if not self.on_sim_time():
             self.wall.sleep_ns(ns)
             return
         deadline = self._now_ns + ns
         while self._now_ns < deadline and not self.closed:
-            w = self.new_waiter(Kind.SLEEP, deadline_ns=deadline)
+            w = self.new_waiter(kind, deadline_ns=deadline)
             try:
                 w.lock.acquire()  # a signal handler that raises (a timer's) leaves through here
             finally:

@@ -171,6 +171,19 @@ class SimRuntime(Gate):
         """Threads whose I/O or notification arrived: a reader thread handles the telemetry of this tick."""
         return Step.RAN if self._release_ready_io_locked() else Step.NOTHING
 
+    def _cut_off_round(self, t_ns: int, generation: int) -> Step:
+        """Threads the clock-read limit stopped in the middle of their work (``Kind.CUT_OFF``) go on before the due
+        waits: a thread that polls what they compute sees it finished or not at the same point at any pace. Released
+        together with the due sleeps, DroneKit's reader (cut off while it took in a 2,767-item parameter list) and
+        the main thread (its 0.1 s poll of ``wait_ready``) ran side by side, and the main thread saw the parameters
+        complete or not as the machine's pace had it: the script went on 0.1 s earlier in 1 run of 30."""
+        cut = [w for w in self.threads.waiting() if w.kind is Kind.CUT_OFF and (w.deadline_ns or 0) <= t_ns]
+        for w in cut:
+            w.timed_out = True
+            self._release_locked(w)
+        self.waits_released += len(cut)
+        return Step.RAN if cut else Step.NOTHING
+
     def _due_round(self, t_ns: int, generation: int) -> Step:
         """The timed waits that fall due, event loops' timers among them (:meth:`timers_held`), and the signal timer:
         a thread polling with ``time.sleep`` sees what the reader stored."""
@@ -401,6 +414,7 @@ ROUNDS: tuple[tuple[str, Callable[[SimRuntime, int, int], Step]], ...] = (
     ("settle: the vehicle handles the script's MAVLink", SimRuntime._settle_round),
     ("library: MAVSDK's threads idle, their gate shut", SimRuntime._library_round),
     ("ready I/O: readers take in this tick", SimRuntime._io_round),
+    ("cut off: threads the clock-read limit stopped go on", SimRuntime._cut_off_round),
     ("due waits: sleeps, timeouts, loop timers, the signal timer", SimRuntime._due_round),
 )
 """The release rounds of a phase 0 once the script is idle, in order: the first that has something to do runs, the

@@ -45,6 +45,9 @@ class Kind(enum.Enum):
     """What a blocked thread waits for (the watchdog and the trace say it)."""
 
     SLEEP = "sleep"
+    CUT_OFF = "cut off"
+    """Stopped by the clock-read limit (``gate.ZENO_READS``) in the middle of its work: it goes on in the next
+    phase, alone, before that phase's due waits (``SimRuntime._cut_off_round``)."""
     CONDITION = "condition"
     """``Condition.wait`` and what is built on it (``Event``, ``Queue``, ``Future.result``…)."""
     LOOP = "event loop"

@@ -32,6 +32,21 @@ def test_a_loop_that_never_idles_and_a_thread_that_only_sends_see_time_pass(tmp_
     assert re.search(r"sender: \d+ datagrams, ended at 5\.0\d\d s", out), out
 
 
+def test_a_thread_cut_off_by_the_clock_read_limit_finishes_before_a_poller_looks(tmp_path: Path) -> None:
+    """A worker whose work reads the clock 2,500 times is stopped by the clock-read limit twice and finishes in the
+    phase where the main thread's ``time.sleep`` poll falls due: the main thread sees the result in that phase in
+    every round, at any pace (before, both were released by the due round and ran side by side: the main thread saw
+    it then or a phase later, 0.040 or 0.060 s, mixed in every run; DroneKit's ``wait_ready`` beside its reader
+    taking in a parameter list started a script 0.1 s early in 1 run of 30)."""
+    run = run_harness(tmp_path / "run", SCRIPTS / "cut_off.py", vehicles=1, duration_s=30)
+    assert run.ok, run.message
+    out = run.mission_output(0)
+    rounds = re.findall(r"round \d: finished at (\d\.\d+) s, seen at (\d\.\d+) s", out)
+    assert len(rounds) == 5, out
+    # stopped at the 1,000th and 2,000th read: it finishes two phases (20 ms each) after it began, and is seen there
+    assert all(finished == seen == "0.040" for finished, seen in rounds), out
+
+
 def test_a_command_ack_ping_pong_runs_at_the_loop_rate_in_sim_time(tmp_path: Path) -> None:
     """DroneKit's performance_test.py in our own words: a COMMAND_ACK listener that sends the next command at
     once. It runs its 10 s of sim and exits 0; the vehicle answers at most 8 datagrams per 4 ms loop, so the
@@ -42,7 +57,9 @@ def test_a_command_ack_ping_pong_runs_at_the_loop_rate_in_sim_time(tmp_path: Pat
     message, took the vehicle's hello heartbeat before or after the main thread had added its capabilities
     listener, and when after, the answer to that request reached the ping-pong's listener too: two commands in
     flight from then on. And a reader polling its socket saw the answer to its last command or not yet, so its
-    1 Hz heartbeat took the vehicle's loop budget before or after one more command (4,500 to 4,504)."""
+    1 Hz heartbeat took the vehicle's loop budget before or after one more command (4,500 to 4,504). And the main
+    thread's ``wait_ready`` poll looked at the parameters while the reader, cut off by the clock-read limit, was
+    still taking them in or had finished (4,500 or 4,499: the ping-pong began at 1.20 or 1.10 s)."""
     pytest.importorskip("dronekit", reason="dronekit2 is in the dev extra")
     outs = []
     for k in range(2):
