@@ -47,7 +47,7 @@ class Kind(enum.Enum):
     SLEEP = "sleep"
     CUT_OFF = "cut off"
     """Stopped by the clock-read limit (``gate.ZENO_READS``) in the middle of its work: it goes on in the next
-    phase, alone, before that phase's due waits (``SimRuntime._cut_off_round``)."""
+    phase in a round of its own, before that phase's due waits (``SimRuntime._cut_off_round``)."""
     CONDITION = "condition"
     """``Condition.wait`` and what is built on it (``Event``, ``Queue``, ``Future.result``…)."""
     LOOP = "event loop"
