@@ -126,8 +126,17 @@ class Gate:
         if lock is None:
             lock = _thread.allocate_lock()
             lock.acquire()
-        w = Waiter(_thread.get_ident(), lock, kind, deadline_ns, wake, rfds=rfds, wfds=wfds, every_phase=every_phase)
-        w.inbox = inbox
+        w = Waiter(
+            _thread.get_ident(),
+            lock,
+            kind,
+            deadline_ns,
+            wake,
+            rfds=rfds,
+            wfds=wfds,
+            every_phase=every_phase,
+            inbox=inbox,
+        )
         self._reads.pop(w.ident, None)
         with self._mu:
             if self.closed:

@@ -50,8 +50,8 @@ class _State(ctypes.Structure):
 @dataclass(frozen=True)
 class NativeState:
     """The shim's state in one look (``hs_snapshot``, under its lock): what :meth:`NativeClock.generation`,
-    :c:func:`hs_busy`, :meth:`~NativeClock.sent`, :meth:`~NativeClock.next_deadline_ns` and
-    :meth:`~NativeClock.waits_for_io` answer, and the threads ``hs_thread_waiting`` answers 1 for."""
+    :c:func:`hs_busy`, :meth:`~NativeClock.sent`, ``hs_next_deadline`` and ``hs_waits_for_io``
+    answer, and the threads ``hs_thread_waiting`` answers 1 for."""
 
     generation: int
     busy: int
@@ -103,12 +103,6 @@ class NativeClock:
 
     def sent(self) -> int:
         return int(self.lib.hs_sent())
-
-    def next_deadline_ns(self) -> int:
-        return int(self.lib.hs_next_deadline())
-
-    def waits_for_io(self) -> bool:
-        return bool(self.lib.hs_waits_for_io())
 
     def generation(self) -> int:
         return int(self.lib.hs_generation())

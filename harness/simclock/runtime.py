@@ -31,7 +31,7 @@ from harness.simclock.gate import Gate
 from harness.simclock.mailbox import Delivery, Mailbox, Outgoing
 from harness.simclock.native import NO_DEADLINE as NATIVE_NO_DEADLINE
 from harness.simclock.native import NativeClock
-from harness.simclock.threads import Kind
+from harness.simclock.threads import Kind, Waiter
 from harness.wire.protocol import EVERY_PHASE, NO_DEADLINE
 
 log = logging.getLogger(__name__)
@@ -177,12 +177,9 @@ class SimRuntime(Gate):
         together with the due sleeps, DroneKit's reader (cut off while it took in a 2,767-item parameter list) and
         the main thread (its 0.1 s poll of ``wait_ready``) ran side by side, and the main thread saw the parameters
         complete or not as the machine's pace had it: the script went on 0.1 s earlier in 1 run of 30."""
-        cut = [w for w in self.threads.waiting() if w.kind is Kind.CUT_OFF and (w.deadline_ns or 0) <= t_ns]
-        for w in cut:
-            w.timed_out = True
-            self._release_locked(w)
-        self.waits_released += len(cut)
-        return Step.RAN if cut else Step.NOTHING
+        return self._time_out_locked(
+            [w for w in self.threads.waiting() if w.kind is Kind.CUT_OFF and (w.deadline_ns or 0) <= t_ns]
+        )
 
     def _due_round(self, t_ns: int, generation: int) -> Step:
         """The timed waits that fall due, event loops' timers among them (:meth:`timers_held`), and the signal timer:
@@ -191,7 +188,12 @@ class SimRuntime(Gate):
         if self.itimer is not None and self.itimer[0] <= t_ns:
             self._fire_itimer_locked(t_ns)
             return Step.RAN
-        due = [w for w in self.threads.waiting() if w.deadline_ns is not None and w.deadline_ns <= t_ns]
+        return self._time_out_locked(
+            [w for w in self.threads.waiting() if w.deadline_ns is not None and w.deadline_ns <= t_ns]
+        )
+
+    def _time_out_locked(self, due: list[Waiter]) -> Step:
+        """Release waits whose deadline has come (they return ``timed_out``)."""
         for w in due:
             w.timed_out = True
             self._release_locked(w)

@@ -477,9 +477,8 @@ pid_t fork(void) {
 
 pid_t vfork(void) { return fork(); }
 
-int posix_spawn(pid_t *pid, const char *path, const void *fa, const void *at, char *const argv[], char *const envp[]) {
-    load_posix_spawn();
-    int r = real_posix_spawn(pid, path, fa, at, argv, envp);
+/* A spawned child counts from now on, before this process can wait for it. */
+static int spawned(int r, const pid_t *pid) {
     if (r == 0 && pid && client >= 0) {
         pthread_mutex_lock(&cmu);
         say("F %lld\n", (long long)*pid);
@@ -488,15 +487,14 @@ int posix_spawn(pid_t *pid, const char *path, const void *fa, const void *at, ch
     return r;
 }
 
+int posix_spawn(pid_t *pid, const char *path, const void *fa, const void *at, char *const argv[], char *const envp[]) {
+    load_posix_spawn();
+    return spawned(real_posix_spawn(pid, path, fa, at, argv, envp), pid);
+}
+
 int posix_spawnp(pid_t *pid, const char *file, const void *fa, const void *at, char *const argv[], char *const envp[]) {
     load_posix_spawnp();
-    int r = real_posix_spawnp(pid, file, fa, at, argv, envp);
-    if (r == 0 && pid && client >= 0) {
-        pthread_mutex_lock(&cmu);
-        say("F %lld\n", (long long)*pid);
-        pthread_mutex_unlock(&cmu);
-    }
-    return r;
+    return spawned(real_posix_spawnp(pid, file, fa, at, argv, envp), pid);
 }
 
 typedef struct {

@@ -118,64 +118,34 @@ class Registry:
         """The blocker of every blocked thread, by ident (at most one each: a blocked thread makes no other)."""
         self._by_lock: dict[int, Waiter] = {}
 
-    # -- threads -------------------------------------------------------------------------------------
-
-    def adopt(self, thread: threading.Thread, role: Role) -> None:
-        """A thread that was running before the registry (the main thread)."""
-        assert thread.ident is not None
-        self.threads[thread.ident] = ThreadEntry(thread, role, own=False, ident=thread.ident)
-
-    def start(self, thread: threading.Thread) -> None:
-        """``Thread.start`` is called (in the starting thread): decide its role; it counts busy until it runs."""
-        role, own = classify(thread)
-        self.starting[id(thread)] = ThreadEntry(thread, role, own)
-
-    def start_failed(self, thread: threading.Thread) -> None:
-        self.starting.pop(id(thread), None)
-
-    def begin(self, thread: threading.Thread, ident: int) -> None:
-        """The new thread's first moment (in it)."""
-        entry = self.starting.pop(id(thread), None)
-        if entry is None:
-            entry = ThreadEntry(thread, *classify(thread))  # started before the registry patched Thread.start
-        entry.ident = ident
-        self.threads[ident] = entry
-
-    def end(self, ident: int) -> None:
-        """The thread's Python part is over (or the script returned, for the main thread): never wait for it again.
-        A ``Thread.join`` of it counts busy from now until it returns."""
-        self.threads.pop(ident, None)
-
-    def role(self, ident: int) -> Role | None:
-        entry = self.threads.get(ident)
-        return None if entry is None else entry.role
-
-    def alive(self, ident: int | None) -> bool:
-        return ident is not None and ident in self.threads
-
-    def own_threads(self) -> list[threading.Thread]:
-        """Non-daemon threads started from the script's own code that have not ended."""
-        return [e.thread for e in self.threads.values() if e.own and not e.thread.daemon]
-
     # -- a thread's life, from the patches of ``threading.Thread`` (:func:`patches`) ---------------------
 
     def adopt_main(self) -> None:
         """The main thread runs the script: it counts (``patch.install``)."""
+        main = threading.main_thread()
+        assert main.ident is not None
         with self._mu:
-            self.adopt(threading.main_thread(), Role.SCRIPT)
+            self.threads[main.ident] = ThreadEntry(main, Role.SCRIPT, own=False, ident=main.ident)
 
     def thread_starting(self, t: threading.Thread) -> None:
+        """``Thread.start`` is called (in the starting thread): decide its role; it counts busy until it runs."""
+        entry = ThreadEntry(t, *classify(t))
         with self._mu:
-            self.start(t)
+            self.starting[id(t)] = entry
 
     def thread_start_failed(self, t: threading.Thread) -> None:
         with self._mu:
-            self.start_failed(t)
+            self.starting.pop(id(t), None)
         self._poke()
 
     def thread_begins(self, t: threading.Thread, ident: int) -> None:
+        """The new thread's first moment (in it)."""
         with self._mu:
-            self.begin(t, ident)
+            entry = self.starting.pop(id(t), None)
+            if entry is None:
+                entry = ThreadEntry(t, *classify(t))  # started before the registry patched Thread.start
+            entry.ident = ident
+            self.threads[ident] = entry
 
     def thread_done(self, ident: int | None = None) -> None:
         """A thread has finished (or the main script returned): never wait for it again."""
@@ -183,10 +153,22 @@ class Registry:
             self.end(ident if ident is not None else _thread.get_ident())
         self._poke()
 
+    def end(self, ident: int) -> None:
+        """The thread's Python part is over: never wait for it again. A ``Thread.join`` of it counts busy from now
+        until it returns. Lock held."""
+        self.threads.pop(ident, None)
+
     def live_own_threads(self) -> list[threading.Thread]:
         """Non-daemon threads the script's own code started that have not ended (the mission waits for them)."""
         with self._mu:
-            return self.own_threads()
+            return [e.thread for e in self.threads.values() if e.own and not e.thread.daemon]
+
+    def role(self, ident: int) -> Role | None:
+        entry = self.threads.get(ident)
+        return None if entry is None else entry.role
+
+    def alive(self, ident: int | None) -> bool:
+        return ident is not None and ident in self.threads
 
     # -- blockers ------------------------------------------------------------------------------------
 
@@ -229,18 +211,18 @@ class Registry:
 
     def first_busy(self, elsewhere: Container[int]) -> ThreadEntry | None:
         """The predicate: None when every counted thread waits (``elsewhere``: idents waiting in the C shim)."""
-        for entry in self.starting.values():
-            if entry.role is Role.SCRIPT:
-                return entry
-        for ident, entry in self.threads.items():
-            if entry.role is Role.SCRIPT and self.waits(ident, elsewhere) is None:
-                return entry
-        return None
+        return next(self._busy(elsewhere), None)
 
     def busy(self, elsewhere: Container[int]) -> list[ThreadEntry]:
         """Every counted thread that keeps the phase open (diagnostics)."""
-        out = [e for e in self.starting.values() if e.role is Role.SCRIPT]
-        return out + [e for i, e in self.threads.items() if e.role is Role.SCRIPT and self.waits(i, elsewhere) is None]
+        return list(self._busy(elsewhere))
+
+    def _busy(self, elsewhere: Container[int]) -> Iterator[ThreadEntry]:
+        """Counted threads being started, then counted threads that do not wait."""
+        yield from (e for e in self.starting.values() if e.role is Role.SCRIPT)
+        for ident, entry in self.threads.items():
+            if entry.role is Role.SCRIPT and self.waits(ident, elsewhere) is None:
+                yield entry
 
 
 # -- roles ---------------------------------------------------------------------------------------------
